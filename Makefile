@@ -1,0 +1,75 @@
+# Two commands on a fresh machine: `make demo` and `make test`.
+# Everything bootstraps .venv from pinned requirements first.
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    ?= out
+
+.PHONY: venv test test-core test-bpy demo cv1d fig2 lint format clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt pyproject.toml
+	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "Python 3.11 is required (bpy 5.0.1), found " + sys.version' \
+		|| (echo "error: Python 3.11 is required; set PYTHON=/path/to/python3.11" >&2; exit 2)
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -r requirements.txt
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	@touch $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-core: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not bpy" tests/core
+
+test-bpy: $(STAMP)
+	$(BIN)/python -m pytest -q -m bpy
+
+RES    ?= 160x90
+FRAMES ?= 60
+SCENES ?= flash,regular
+
+demo: $(STAMP)
+	$(BIN)/cvsss demo --out $(OUT)/demo --res $(RES) --frames $(FRAMES) --scenes $(SCENES)
+
+cv1d: $(STAMP)
+	$(BIN)/cvsss cv1d --out $(OUT)
+
+fig2: $(STAMP)
+	$(BIN)/cvsss fig2 --out $(OUT)
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+clean:
+	rm -rf $(OUT) dist build *.egg-info .pytest_cache .ruff_cache
+
+# -- Blender extension -------------------------------------------------------------------
+# `make extension` builds dist/cvsss-<version>.zip with Blender's own extension tool
+# and validates it; the OpenEXR wheels it bundles are fetched by `make wheels`.
+BLENDER_EXT     := $(VENV)/lib/python3.11/site-packages/bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py
+EXT_VERSION      = $(shell sed -n 's/^version *= *"\(.*\)"/\1/p' blender_manifest.toml)
+OPENEXR_VERSION := 3.5.3
+WHEEL_PLATFORMS := manylinux_2_28_x86_64 manylinux_2_28_aarch64 win_amd64 macosx_11_0_arm64 macosx_10_15_x86_64
+WHEELS          := $(foreach p,$(WHEEL_PLATFORMS),wheels/openexr-$(OPENEXR_VERSION)-cp311-cp311-$(p).whl)
+
+.PHONY: wheels extension
+
+wheels: $(WHEELS)
+
+wheels/openexr-$(OPENEXR_VERSION)-cp311-cp311-%.whl: | $(STAMP)
+	$(BIN)/python -m pip download --quiet OpenEXR==$(OPENEXR_VERSION) --only-binary=:all: --no-deps \
+		--python-version 3.11 --platform $* --dest wheels
+	@test -f $@ || (echo "error: pip did not fetch $@ (see wheels/)" >&2; exit 1)
+
+extension: wheels
+	$(BIN)/python $(BLENDER_EXT) build --source-dir . --output-dir dist
+	$(BIN)/python $(BLENDER_EXT) validate dist/cvsss-$(EXT_VERSION).zip

@@ -1,0 +1,25 @@
+"""Pure-NumPy core of adaptive control-variate subsurface scattering.
+
+Never imports ``bpy``: everything here runs and is tested without Blender.
+References: Xie & Olano 2021 (P), Xie's defense slides (D), Jimenez et al.
+2015 supplementary (S); see ``shared/SPEC.md``.
+"""
+
+from .camera import Camera
+from .frame import Frame, MaterialSpec
+from .methods import METHODS, Method, get_method
+from .params import ParameterError, SSSParams
+from .pipeline import FrameResult, SequenceProcessor
+
+__all__ = [
+    "METHODS",
+    "Camera",
+    "Frame",
+    "FrameResult",
+    "MaterialSpec",
+    "Method",
+    "ParameterError",
+    "SSSParams",
+    "SequenceProcessor",
+    "get_method",
+]

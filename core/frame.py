@@ -1,0 +1,169 @@
+"""The per-frame input of the core: Blender passes plus camera and materials.
+
+Image arrays follow the EXR convention: row 0 is the *top* of the image,
+column 0 the left. (Blender's ``Image.pixels`` start at the bottom row; the
+add-on flips when it creates image datablocks.) Colours are linear,
+scene-referred Rec. 709; depth is planar, in scene units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import Camera
+
+#: Depths at or beyond this (Blender writes 1e10 for the background) are "no surface".
+BACKGROUND_DEPTH = 1e9
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """Subsurface parameters of one material slot (Material Index pass value).
+
+    Attributes
+    ----------
+    slot : int
+        Material pass index, >= 1.
+    name : str
+        Blender material name.
+    d : tuple of 3 floats
+        Burley shape per channel, scene units (``radius·scale·0.25/π``).
+    profile : str
+        Profile name (``"burley"``; other profiles join via core.profiles).
+    options : dict
+        Profile-specific options (e.g. a measured preset), JSON-serialisable.
+    """
+
+    slot: int
+    name: str
+    d: tuple[float, float, float]
+    profile: str = "burley"
+    options: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.slot, bool) or not isinstance(self.slot, int) or self.slot < 1:
+            raise ValueError(f"material slot must be an integer >= 1, got {self.slot!r}")
+        d = tuple(float(v) for v in self.d)
+        if len(d) != 3 or not all(np.isfinite(d)) or min(d) < 0:
+            raise ValueError(f"material {self.name!r}: d must be 3 finite values >= 0, got {self.d!r}")
+        object.__setattr__(self, "d", d)
+
+    def to_dict(self) -> dict:
+        return {"slot": self.slot, "name": self.name, "d": list(self.d),
+                "profile": self.profile, "options": dict(self.options)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> MaterialSpec:
+        return cls(slot=int(data["slot"]), name=str(data.get("name", f"slot{data['slot']}")),
+                   d=tuple(data["d"]), profile=str(data.get("profile", "burley")),
+                   options=dict(data.get("options", {})))
+
+
+def _clean(name: str, array: np.ndarray, shape: tuple, channels: int | None) -> np.ndarray:
+    a = np.asarray(array)
+    want = shape if channels is None else (*shape, channels)
+    if a.shape != want:
+        raise ValueError(f"pass {name!r} has shape {a.shape}, expected {want}")
+    return a
+
+
+@dataclass
+class Frame:
+    """Passes of one rendered frame.
+
+    Attributes
+    ----------
+    number : int
+        Frame number in the sequence.
+    lighting : (H, W, 3) float32
+        B, pre-integrated lighting without albedo: Diffuse Direct + Diffuse
+        Indirect rendered with subsurface disabled; linear. Non-finite and
+        negative values are replaced by 0 (counted in ``repaired``).
+    albedo : (H, W, 3) float32
+        Diffuse Color pass, linear.
+    combined : (H, W, 3) float32
+        Combined (beauty) pass without alpha, linear.
+    depth : (H, W) float32
+        Planar depth, scene units; >= 1e9 or non-finite is background.
+    material : (H, W) int32
+        Material Index pass, 0 = no subsurface.
+    camera : Camera
+    materials : dict[int, MaterialSpec]
+        Subsurface materials by slot.
+    motion : (H, W, 2) float32 or None
+        Offset (dx, dy) in pixels from a pixel to where its surface was in the
+        previous frame, x right and y down (EXR rows). None = static.
+    source : str or None
+        File the frame was read from (for messages).
+    repaired : int
+        Input values replaced by 0 because non-finite or negative.
+    lighting_passes : tuple of str
+        Passes summed into B (e.g. Diffuse Direct, Diffuse Indirect).
+    """
+
+    number: int
+    lighting: np.ndarray
+    albedo: np.ndarray
+    combined: np.ndarray
+    depth: np.ndarray
+    material: np.ndarray
+    camera: Camera
+    materials: dict[int, MaterialSpec] = field(default_factory=dict)
+    motion: np.ndarray | None = None
+    source: str | None = None
+    repaired: int = 0
+    lighting_passes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        depth = np.asarray(self.depth)
+        if depth.ndim != 2 or depth.shape[0] < 1 or depth.shape[1] < 1:
+            raise ValueError(f"pass 'depth' must be a 2D image, got shape {depth.shape}")
+        shape = depth.shape
+        if (self.camera.height, self.camera.width) != shape:
+            raise ValueError(
+                f"camera resolution {self.camera.width}x{self.camera.height} does not match "
+                f"the passes ({shape[1]}x{shape[0]})"
+            )
+        repaired = 0
+        for name in ("lighting", "albedo", "combined"):
+            a = _clean(name, getattr(self, name), shape, 3).astype(np.float32, copy=True)
+            bad = ~np.isfinite(a) | (a < 0)
+            n_bad = int(np.count_nonzero(bad))
+            if n_bad:
+                a[bad] = 0.0
+                repaired += n_bad
+            setattr(self, name, a)
+        d = depth.astype(np.float32, copy=True)
+        d[~np.isfinite(d) | (d <= 0) | (d >= BACKGROUND_DEPTH)] = np.inf
+        self.depth = d
+        m = _clean("material", self.material, shape, None)
+        m = np.nan_to_num(np.asarray(m, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        self.material = np.clip(np.rint(m), 0, 2**31 - 1).astype(np.int32)
+        if self.motion is not None:
+            mv = _clean("motion", self.motion, shape, 2).astype(np.float32, copy=True)
+            mv[~np.isfinite(mv)] = 0.0
+            self.motion = mv
+        for slot, spec in self.materials.items():
+            if slot != spec.slot:
+                raise ValueError(f"material table key {slot} does not match slot {spec.slot}")
+        self.repaired = repaired
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) in pixels."""
+        return self.depth.shape
+
+    @property
+    def surface(self) -> np.ndarray:
+        """(H, W) bool: pixels that see a surface (finite depth)."""
+        return np.isfinite(self.depth)
+
+    def d_table(self) -> np.ndarray:
+        """(K, 3) Burley ``d`` per slot (scene units), K = max slot in use + 1."""
+        k = max([0, *self.materials.keys(), int(self.material.max(initial=0))]) + 1
+        table = np.zeros((k, 3))
+        for slot, spec in self.materials.items():
+            table[slot] = spec.d
+        return table

@@ -1,0 +1,94 @@
+"""R2 sequence with per-pixel, per-frame hashed offsets.
+
+The defense slides (D, slide 42) pair Roberts' R2 sequence, which keeps the
+samples of one pixel well stratified, with the pcg3d hash of Jarzynski & Olano
+(2020) on (x, y, frame), which decorrelates pixels and frames. Everything is
+integer arithmetic on uint32, so a fixed seed gives bit-identical samples.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Plastic number φ₂, the real root of x³ = x + 1.
+PHI2 = 1.32471795724474602596
+R2_STEP = np.array([1.0 / PHI2, 1.0 / PHI2**2])
+
+_U32 = np.uint32
+_INV_2_32 = 1.0 / 4294967296.0
+
+
+def pcg3d(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, ...]:
+    """pcg3d hash (Jarzynski & Olano 2020) on uint32 triples.
+
+    Parameters
+    ----------
+    x, y, z : (...) integer arrays, broadcastable; taken modulo 2**32.
+
+    Returns
+    -------
+    (hx, hy, hz) : three (...) uint32 arrays.
+
+    >>> [int(v) for v in pcg3d(np.uint32(0), np.uint32(0), np.uint32(0))]
+    [2611992518, 2833812075, 1058359340]
+    """
+    shape = np.broadcast_shapes(np.shape(x), np.shape(y), np.shape(z))
+    vx, vy, vz = (np.broadcast_to(np.asarray(a).astype(np.int64) & 0xFFFFFFFF, shape).astype(_U32)
+                  for a in (x, y, z))
+    with np.errstate(over="ignore"):
+        vx = vx * _U32(1664525) + _U32(1013904223)
+        vy = vy * _U32(1664525) + _U32(1013904223)
+        vz = vz * _U32(1664525) + _U32(1013904223)
+        vx = vx + vy * vz
+        vy = vy + vz * vx
+        vz = vz + vx * vy
+        vx ^= vx >> _U32(16)
+        vy ^= vy >> _U32(16)
+        vz ^= vz >> _U32(16)
+        vx = vx + vy * vz
+        vy = vy + vz * vx
+        vz = vz + vx * vy
+    return vx, vy, vz
+
+
+def pixel_offsets(
+    px: np.ndarray, py: np.ndarray, frame: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel, per-frame Cranley–Patterson offsets in [0, 1)².
+
+    Parameters
+    ----------
+    px, py : (N,) integer arrays, pixel column and row.
+    frame : int
+        Frame number.
+    seed : int
+        Stream seed in [0, 2**32); combined with the frame by XOR.
+
+    Returns
+    -------
+    sx, sy : (N,) float64 arrays in [0, 1).
+    """
+    hx, hy, _ = pcg3d(px, py, np.int64(frame) ^ np.int64(seed))
+    return hx * _INV_2_32, hy * _INV_2_32
+
+
+def r2_points(
+    sx: np.ndarray, sy: np.ndarray, k: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``frac(s + k·(1/φ₂, 1/φ₂²))`` of the shifted R2 sequence.
+
+    Parameters
+    ----------
+    sx, sy : (N,) float arrays, per-sample offsets in [0, 1).
+    k : (N,) integer array, sample index within its pixel (1, 2, …).
+
+    Returns
+    -------
+    u, v : (N,) float64 arrays in [0, 1).
+    """
+    k = np.asarray(k, dtype=np.float64)
+    u = sx + k * R2_STEP[0]
+    v = sy + k * R2_STEP[1]
+    u -= np.floor(u)
+    v -= np.floor(v)
+    return u, v

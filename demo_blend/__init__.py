@@ -1,0 +1,1 @@
+"""Scripts that build the demo scenes deterministically (see ``scenes``)."""

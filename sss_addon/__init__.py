@@ -1,0 +1,24 @@
+"""Blender glue: settings, panels, pass rendering, image datablocks and the CLI.
+
+Importing this package does not import bpy (the ``cvsss`` command imports
+``sss_addon.cli`` without Blender); the submodules that need bpy are loaded
+by :func:`register`.
+"""
+
+
+def _modules():
+    from .. import operators
+    from . import panels, properties
+
+    # Registration order: properties before the operators and panels that use them.
+    return (properties, operators, panels)
+
+
+def register():
+    for module in _modules():
+        module.register()
+
+
+def unregister():
+    for module in reversed(_modules()):
+        module.unregister()

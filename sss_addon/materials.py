@@ -1,0 +1,211 @@
+"""Subsurface materials: which take part, their Burley shape, and switching SSS off.
+
+A material takes part when its ``sss_material.mode`` is ON, or AUTO and one
+of its Principled BSDFs (also inside node groups) has a Subsurface Weight > 0
+or a linked weight. Its Burley shape per channel comes from that node,
+``d_c = Subsurface Radius_c · Subsurface Scale · 0.25/π``
+(:func:`core.profiles.burley.blender_shape`), unless overridden.
+
+For the pass render the weight is forced to 0 (links removed, animation
+muted) so the Diffuse passes hold unblurred lighting; :class:`SSSDisabled`
+puts every value, link and mute flag back, also on error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import bpy
+
+from ..core.frame import MaterialSpec
+from ..core.profiles.burley import blender_shape
+
+WEIGHT = "Subsurface Weight"
+RADIUS = "Subsurface Radius"
+SCALE = "Subsurface Scale"
+
+
+def principled_nodes(node_tree, _seen: set | None = None) -> Iterator[tuple[object, object]]:
+    """(node tree, node) of every Principled BSDF, descending into node groups once."""
+    seen = set() if _seen is None else _seen
+    if node_tree is None or node_tree.as_pointer() in seen:
+        return
+    seen.add(node_tree.as_pointer())
+    for node in node_tree.nodes:
+        if node.bl_idname == "ShaderNodeBsdfPrincipled":
+            yield node_tree, node
+        elif node.bl_idname == "ShaderNodeGroup" and node.node_tree is not None:
+            yield from principled_nodes(node.node_tree, seen)
+
+
+def _has_weight(node) -> bool:
+    socket = node.inputs.get(WEIGHT)
+    return socket is not None and (socket.is_linked or socket.default_value > 0.0)
+
+
+def _source_node(material):
+    """The Principled BSDF that defines the material's subsurface (or None)."""
+    nodes = [node for _, node in principled_nodes(getattr(material, "node_tree", None))]
+    for node in nodes:
+        if _has_weight(node):
+            return node
+    return nodes[0] if nodes else None
+
+
+def _settings(material):
+    return getattr(material, "sss_material", None)
+
+
+def participates(material) -> bool:
+    """Whether ``material`` takes part in screen-space subsurface scattering."""
+    if material is None:
+        return False
+    settings = _settings(material)
+    mode = settings.mode if settings is not None else "AUTO"
+    if mode == "OFF":
+        return False
+    if mode == "ON":
+        return True
+    return any(_has_weight(node) for _, node in principled_nodes(material.node_tree))
+
+
+def principled_shape(material) -> tuple[float, float, float] | None:
+    """Burley ``d`` per channel (scene units) from the material's Principled BSDF."""
+    node = _source_node(material)
+    if node is None:
+        return None
+    radius = node.inputs[RADIUS].default_value
+    scale = node.inputs[SCALE].default_value
+    return tuple(float(v) for v in blender_shape(tuple(radius), float(scale)))
+
+
+def material_shape(material) -> tuple[float, float, float]:
+    """Burley ``d`` used for ``material``: the override, else the Principled BSDF's."""
+    settings = _settings(material)
+    if settings is not None and settings.use_override:
+        return tuple(float(v) for v in settings.d_override)
+    shape = principled_shape(material)
+    if shape is None:
+        raise ValueError(
+            f"material {material.name!r} takes part but has no Principled BSDF; "
+            "set an override d in its Subsurface (cvsss) panel"
+        )
+    return shape
+
+
+def scene_materials(scene, view_layer=None) -> list:
+    """Materials the scene renders (evaluated: instances and modifiers included), by name."""
+    view_layer = view_layer or scene.view_layers[0]
+    found = {}
+    try:
+        depsgraph = view_layer.depsgraph
+        depsgraph.update()
+        for id_ in depsgraph.ids:
+            if isinstance(id_, bpy.types.Material):
+                found[id_.original.name] = id_.original
+    except (AttributeError, RuntimeError):
+        pass
+    for obj in scene.objects:
+        for slot in getattr(obj, "material_slots", ()):
+            if slot.material is not None:
+                found.setdefault(slot.material.name, slot.material)
+    return [found[name] for name in sorted(found)]
+
+
+def participating(scene, view_layer=None) -> list:
+    """Scene materials that take part, in slot order (sorted by name)."""
+    return [m for m in scene_materials(scene, view_layer) if participates(m)]
+
+
+def material_specs(materials: Iterable) -> list[MaterialSpec]:
+    """MaterialSpec per participating material; slots 1..K in the given order."""
+    specs = []
+    for slot, material in enumerate(materials, 1):
+        settings = _settings(material)
+        options = {}
+        if settings is not None and settings.preset != "NONE":
+            # core.profiles has no preset table yet: the choice travels with the passes.
+            options["preset"] = settings.preset.lower()
+        specs.append(
+            MaterialSpec(slot=slot, name=material.name, d=material_shape(material),
+                         options=options)
+        )
+    return specs
+
+
+# -- switching subsurface off for the pass render ------------------------------------
+def _fcurves(anim) -> Iterator:
+    """Drivers and action F-curves of an AnimData (legacy and layered actions)."""
+    if anim is None:
+        return
+    yield from anim.drivers
+    action = anim.action
+    if action is None:
+        return
+    if getattr(action, "layers", None):
+        for layer in action.layers:
+            for strip in layer.strips:
+                for bag in getattr(strip, "channelbags", ()):
+                    yield from bag.fcurves
+    elif hasattr(action, "fcurves"):
+        yield from action.fcurves
+
+
+@dataclass
+class _SavedSocket:
+    node_tree: object
+    node: str
+    value: float
+    links: list = field(default_factory=list)
+    muted: list = field(default_factory=list)  # (fcurve, mute flag)
+
+
+class SSSDisabled(contextlib.AbstractContextManager):
+    """Force Subsurface Weight to 0 on ``materials``; restore on exit, whatever happens.
+
+    Linked weights are unlinked and animation or drivers on the weight muted,
+    so the render sees 0 on every frame.
+    """
+
+    def __init__(self, materials: Iterable) -> None:
+        self.materials = list(materials)
+        self.saved: list[_SavedSocket] = []
+
+    def __enter__(self) -> SSSDisabled:
+        try:
+            for material in self.materials:
+                for tree, node in principled_nodes(material.node_tree):
+                    socket = node.inputs[WEIGHT]
+                    path = socket.path_from_id("default_value")
+                    saved = _SavedSocket(tree, node.name, float(socket.default_value),
+                                         [link.from_socket for link in socket.links])
+                    self.saved.append(saved)
+                    for fcurve in _fcurves(tree.animation_data):
+                        if fcurve.data_path == path:
+                            saved.muted.append((fcurve, fcurve.mute))
+                            fcurve.mute = True
+                    for link in list(socket.links):
+                        tree.links.remove(link)
+                    socket.default_value = 0.0
+        except BaseException:
+            self.restore()
+            raise
+        return self
+
+    def restore(self) -> None:
+        # Reverse order: a node group shared by two materials is saved twice,
+        # and the first record holds the original state.
+        for saved in reversed(self.saved):
+            socket = saved.node_tree.nodes[saved.node].inputs[WEIGHT]
+            socket.default_value = saved.value
+            for from_socket in saved.links:
+                if not any(link.from_socket == from_socket for link in socket.links):
+                    saved.node_tree.links.new(from_socket, socket)
+            for fcurve, mute in saved.muted:
+                fcurve.mute = mute
+        self.saved.clear()
+
+    def __exit__(self, *exc) -> None:
+        self.restore()

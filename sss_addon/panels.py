@@ -1,0 +1,122 @@
+"""Panels: Properties ▸ Render (parameters, actions, last-frame statistics) and
+Properties ▸ Material (whether the material takes part and its Burley shape)."""
+
+import bpy
+from bpy.types import Panel
+
+from ..core.methods import METHODS
+from . import materials as sss_materials
+
+
+class SSS_PT_render(Panel):
+    bl_label = "Screen-Space Subsurface (cvsss)"
+    bl_idname = "SSS_PT_render"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = context.scene.sss_settings
+        method = METHODS.get(s.method)
+
+        layout.prop(s, "method")
+        row = layout.row()
+        row.prop(s, "cv_mode")
+        row.enabled = method is not None and method.adaptive
+
+        col = layout.column(align=True)
+        col.active = method is not None and method.adaptive
+        col.prop(s, "target_variance")
+        col.prop(s, "eta")
+        col.prop(s, "kappa")
+        col.prop(s, "beta_min")
+        col.prop(s, "beta_max")
+        col.prop(s, "eps_u")
+        sub = col.column(align=True)
+        sub.active = method is not None and method.cv == "online"
+        sub.prop(s, "eta_cv")
+        sub.prop(s, "eps_alpha")
+
+        col = layout.column(align=True)
+        row = col.row()
+        row.prop(s, "fixed_spp")
+        row.active = s.method == "fixed"
+        col.prop(s, "use_reference")
+        row = col.row()
+        row.prop(s, "reference_spp")
+        row.active = s.use_reference or s.method == "reference"
+        col.prop(s, "seed")
+        col.prop(s, "history_precision")
+        col.prop(s, "exposure")
+
+        col = layout.column()
+        col.prop(s, "engine")
+        col.prop(s, "use_normal_pass")
+        col.prop(s, "output_dir")
+        col.prop(s, "overwrite")
+        col.prop(s, "use_frame_range")
+        sub = col.column(align=True)
+        sub.active = s.use_frame_range
+        sub.prop(s, "frame_start")
+        sub.prop(s, "frame_end")
+
+        layout.use_property_split = False
+        row = layout.row(align=True)
+        row.operator("sss.render_passes", icon="RENDER_STILL")
+        row.operator("sss.apply_frame", icon="IMAGE_DATA")
+        layout.operator("sss.render_sequence", icon="RENDER_ANIMATION")
+        layout.operator_menu_enum("sss.build_demo", "scene_name", icon="SCENE_DATA")
+
+        box = layout.box()
+        if s.has_stats:
+            box.label(text=f"Frame {s.last_frame} ({s.last_method})")
+            box.label(text=f"Mean spp: {s.last_spp:.2f}")
+            box.label(text=f"Pass time: {s.last_pass_ms:.2f} ms")
+            box.label(text=f"PSNR: {s.last_psnr:.2f} dB" if s.last_psnr > 0 else "PSNR: –")
+        else:
+            box.label(text="No frame processed yet")
+
+
+class SSS_PT_material(Panel):
+    bl_label = "Subsurface (cvsss)"
+    bl_idname = "SSS_PT_material"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "material"
+    bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
+
+    @classmethod
+    def poll(cls, context):
+        return getattr(context, "material", None) is not None
+
+    def draw(self, context):
+        layout = self.layout
+        material = context.material
+        m = material.sss_material
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(m, "mode")
+        row = layout.row()
+        row.enabled = False
+        row.prop(m, "participates")
+
+        shape = sss_materials.principled_shape(material)
+        box = layout.box()
+        if shape is None:
+            box.label(text="No Principled BSDF", icon="INFO")
+        else:
+            box.label(text="Burley d from Principled BSDF (radius × scale × 0.25/π):")
+            box.label(text="R {:.5g}  G {:.5g}  B {:.5g}".format(*shape))
+        layout.prop(m, "use_override")
+        col = layout.column()
+        col.active = m.use_override
+        col.prop(m, "d_override")
+        layout.prop(m, "preset")
+
+
+classes = (SSS_PT_render, SSS_PT_material)
+register, unregister = bpy.utils.register_classes_factory(classes)

@@ -1,0 +1,322 @@
+"""Rendering the passes the core needs, and putting the scene back afterwards.
+
+:class:`PassSetup` is the one place that changes the user's scene for a pass
+render: it snapshots the render settings, the view layers, the material pass
+indices and the subsurface weights, applies the pass configuration and
+restores every value on exit, also on error and on cancel. Nothing here saves
+the .blend.
+
+Passes enabled on the rendered view layer: Combined, Depth (``use_pass_z``),
+Material Index, Vector (motion blur off), Diffuse Direct / Indirect / Color
+and optionally Normal; every other pass is switched off. Denoising,
+compositing and the sequencer are off; output is a 32-bit multilayer EXR.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import bpy
+
+from ..core.camera import Camera
+from ..core.exr import OutputError, make_sidecar, write_sidecar
+from ..core.frame import MaterialSpec
+from . import materials as sss_materials
+
+
+class RenderError(ValueError):
+    """A problem with the scene or the settings that the user can fix."""
+
+
+# -- generic RNA snapshots -------------------------------------------------------------
+_SCALAR_TYPES = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
+
+
+def rna_values(struct, nested: Iterable[str] = ()) -> dict:
+    """Writable scalar properties of an RNA struct (and of ``nested`` pointers).
+
+    Returns
+    -------
+    dict
+        identifier -> value (arrays as tuples, enum flags as frozensets);
+        ``nested`` pointers as ``{name: dict}`` under their identifier.
+    """
+    values: dict = {}
+    for prop in struct.bl_rna.properties:
+        ident = prop.identifier
+        if ident == "rna_type" or prop.is_readonly or prop.type not in _SCALAR_TYPES:
+            continue
+        try:
+            value = getattr(struct, ident)
+        except (AttributeError, RuntimeError):
+            continue
+        if prop.type == "ENUM" and prop.is_enum_flag:
+            value = frozenset(value)
+        elif prop.type != "STRING" and hasattr(value, "__len__"):
+            value = tuple(value)
+        values[ident] = value
+    for name in nested:
+        child = getattr(struct, name, None)
+        if child is not None:
+            values[name] = rna_values(child)
+    return values
+
+
+# Properties whose setting changes others: restored first, in this order.
+_FIRST = ("engine", "media_type", "file_format", "color_mode", "color_depth")
+
+
+def restore_rna(struct, values: dict) -> None:
+    """Set every recorded value that differs; pointers recurse. Errors are ignored
+    per property so one unsettable value does not block the others."""
+    keys = sorted(values, key=lambda k: _FIRST.index(k) if k in _FIRST else len(_FIRST))
+    for _ in range(2):  # a second pass settles values that depend on one another
+        for key in keys:
+            value = values[key]
+            if isinstance(value, dict):
+                child = getattr(struct, key, None)
+                if child is not None:
+                    restore_rna(child, value)
+                continue
+            try:
+                current = getattr(struct, key)
+                if isinstance(value, frozenset):
+                    current = frozenset(current)
+                elif isinstance(value, tuple):
+                    current = tuple(current)
+                if current != value:
+                    setattr(struct, key, set(value) if isinstance(value, frozenset) else value)
+            except (AttributeError, TypeError, ValueError, RuntimeError):
+                continue
+
+
+# -- scene queries ------------------------------------------------------------------------
+def render_view_layer(scene, context=None):
+    """The view layer whose passes are rendered: the context's, else the first used."""
+    if context is not None and getattr(context, "scene", None) == scene:
+        layer = getattr(context, "view_layer", None)
+        if layer is not None:
+            return layer
+    for layer in scene.view_layers:
+        if layer.use:
+            return layer
+    return scene.view_layers[0]
+
+
+def output_size(scene) -> tuple[int, int]:
+    """(width, height) in pixels after the resolution percentage, as Blender computes it."""
+    r = scene.render
+    return (r.resolution_x * r.resolution_percentage // 100,
+            r.resolution_y * r.resolution_percentage // 100)
+
+
+def scene_camera(scene) -> Camera:
+    """The core's Camera for the scene's active camera at the current frame."""
+    obj = scene.camera
+    if obj is None or obj.type != "CAMERA":
+        raise RenderError(f"scene {scene.name!r} has no active camera")
+    cam = obj.data
+    if cam.type not in ("PERSP", "ORTHO"):
+        raise RenderError(
+            f"camera {obj.name!r} is {cam.type}; only perspective and orthographic cameras "
+            "are supported"
+        )
+    width, height = output_size(scene)
+    r = scene.render
+    return Camera(
+        width=width, height=height, type=cam.type, lens=float(cam.lens),
+        sensor_width=float(cam.sensor_width), sensor_height=float(cam.sensor_height),
+        sensor_fit=cam.sensor_fit, ortho_scale=float(cam.ortho_scale),
+        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),
+        clip_start=float(cam.clip_start), clip_end=float(cam.clip_end),
+    )
+
+
+def engine_identifier(scene, engine: str) -> str:
+    """Blender's identifier for ``CYCLES`` or ``EEVEE`` (BLENDER_EEVEE_NEXT in 4.2–4.4)."""
+    if engine not in ("CYCLES", "EEVEE"):
+        raise RenderError(f"engine must be CYCLES or EEVEE, got {engine!r}")
+    if engine == "CYCLES":
+        return "CYCLES"
+    items = {i.identifier for i in scene.render.bl_rna.properties["engine"].enum_items}
+    return "BLENDER_EEVEE_NEXT" if "BLENDER_EEVEE_NEXT" in items else "BLENDER_EEVEE"
+
+
+# -- the pass configuration -----------------------------------------------------------------
+NEEDED_PASSES = (
+    "use_pass_combined",
+    "use_pass_z",
+    "use_pass_material_index",
+    "use_pass_vector",
+    "use_pass_diffuse_direct",
+    "use_pass_diffuse_indirect",
+    "use_pass_diffuse_color",
+)
+
+
+class PassSetup(contextlib.AbstractContextManager):
+    """Configure ``scene`` for the pass render of ``materials``; restore on exit.
+
+    Parameters
+    ----------
+    scene : bpy.types.Scene
+    materials : list of bpy.types.Material
+        Participating materials; they get pass indices 1..K (in this order)
+        and Subsurface Weight 0. Every other material gets pass index 0.
+    view_layer : bpy.types.ViewLayer
+        The only view layer rendered.
+    engine : {"CYCLES", "EEVEE"}
+    normal : bool
+        Also enable the Normal pass.
+    """
+
+    def __init__(self, scene, materials, view_layer, engine: str = "CYCLES",
+                 normal: bool = False) -> None:
+        self.scene = scene
+        self.materials = list(materials)
+        self.view_layer = view_layer
+        self.engine = engine_identifier(scene, engine)
+        self.normal = normal
+        self._saved: list[tuple[object, dict]] = []
+        self._pass_index: dict[str, int] = {}
+        self._sss: sss_materials.SSSDisabled | None = None
+
+    def _structs(self) -> Iterator[tuple[object, tuple[str, ...]]]:
+        scene = self.scene
+        yield scene.render, ("image_settings",)
+        for name in ("cycles", "eevee"):
+            if getattr(scene, name, None) is not None:
+                yield getattr(scene, name), ()
+        for layer in scene.view_layers:
+            yield layer, ()
+            if getattr(layer, "cycles", None) is not None:
+                yield layer.cycles, ()
+
+    def __enter__(self) -> PassSetup:
+        try:
+            self._saved = [(s, rna_values(s, nested)) for s, nested in self._structs()]
+            self._pass_index = {m.name: m.pass_index for m in bpy.data.materials}
+            self._apply()
+            self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
+        except BaseException:
+            self.restore()
+            raise
+        return self
+
+    def _apply(self) -> None:
+        scene, layer = self.scene, self.view_layer
+        r = scene.render
+        r.engine = self.engine
+        r.use_motion_blur = False  # the Vector pass is not written with motion blur
+        r.use_compositing = False
+        r.use_sequencer = False
+        r.use_border = False  # the post-process needs the whole frame
+        r.use_file_extension = True
+        r.use_single_layer = False
+        s = r.image_settings
+        if hasattr(s, "media_type"):
+            s.media_type = "MULTI_LAYER_IMAGE"
+        s.file_format = "OPEN_EXR_MULTILAYER"
+        s.color_depth = "32"
+        s.exr_codec = "ZIP"
+        if getattr(scene, "cycles", None) is not None:
+            scene.cycles.use_denoising = False
+        for other in scene.view_layers:
+            other.use = other == layer
+        for prop in layer.bl_rna.properties:
+            ident = prop.identifier
+            if ident.startswith("use_pass_") and not prop.is_readonly:
+                wanted = ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
+                setattr(layer, ident, wanted)
+        cycles_layer = getattr(layer, "cycles", None)
+        if cycles_layer is not None:
+            for prop in cycles_layer.bl_rna.properties:
+                if prop.type == "BOOLEAN" and not prop.is_readonly and (
+                    prop.identifier.startswith(("use_pass_", "pass_"))
+                    or prop.identifier in ("use_denoising", "denoising_store_passes")
+                ):
+                    setattr(cycles_layer, prop.identifier, False)
+        for material in bpy.data.materials:
+            if material.pass_index != 0:
+                material.pass_index = 0
+        for slot, material in enumerate(self.materials, 1):
+            material.pass_index = slot
+
+    def restore(self) -> None:
+        """Put back everything saved so far (safe to call more than once)."""
+        if self._sss is not None:
+            self._sss.restore()
+            self._sss = None
+        for material in bpy.data.materials:
+            index = self._pass_index.get(material.name)
+            if index is not None and material.pass_index != index:
+                material.pass_index = index
+        self._pass_index = {}
+        for struct, values in self._saved:
+            restore_rna(struct, values)
+        self._saved = []
+
+    def __exit__(self, *exc) -> None:
+        self.restore()
+
+
+# -- one frame ---------------------------------------------------------------------------------
+def pass_path(passes_dir: Path, frame: int) -> Path:
+    """``<passes_dir>/####.exr`` for ``frame``."""
+    return Path(passes_dir) / f"{frame:04d}.exr"
+
+
+def frame_done(passes_dir: Path, frame: int) -> bool:
+    """The pass EXR and its sidecar of ``frame`` both exist."""
+    path = pass_path(passes_dir, frame)
+    return path.is_file() and path.with_suffix(".json").is_file()
+
+
+def _render_still(scene) -> None:
+    """Render the current frame and write ``scene.render.filepath`` (tests replace this)."""
+    result = bpy.ops.render.render(write_still=True, scene=scene.name)
+    if "FINISHED" not in result:
+        raise RenderError(f"rendering frame {scene.frame_current} was cancelled")
+
+
+def render_frame(
+    scene,
+    frame: int,
+    passes_dir: Path,
+    specs: list[MaterialSpec],
+    view_layer,
+) -> Path:
+    """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
+
+    The sidecar is written first and the EXR rendered to a temporary name
+    that is renamed into place, so a pass file is complete or absent.
+
+    Returns
+    -------
+    Path of the pass EXR.
+    """
+    scene.frame_set(frame)
+    path = pass_path(passes_dir, frame)
+    sidecar = make_sidecar(
+        scene_camera(scene), specs, frame=frame, view_layer=view_layer.name,
+        engine=scene.render.engine,
+        scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
+    )
+    write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
+    temp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.exr")
+    scene.render.filepath = str(temp)
+    try:
+        _render_still(scene)
+        if not temp.is_file():
+            raise OutputError(temp, "Blender wrote no file (check the output folder)")
+        try:
+            os.replace(temp, path)
+        except OSError as exc:
+            raise OutputError(path, exc) from exc
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            temp.unlink()
+    return path
