@@ -34,7 +34,7 @@ from functools import cached_property
 import numpy as np
 
 from .profiles.base import Profile
-from .sampling.sequence import pixel_offsets, r2_points
+from .sampling.sequence import pixel_hashes, r2_points_fixed
 
 TWO_PI = 2.0 * np.pi
 
@@ -227,55 +227,94 @@ def estimate_distant(
     fallback = 0
     if total == 0:
         return DistantEstimate(distant, 0, 0)
-    sx_all, sy_all = pixel_offsets(geom.x[active], geom.y[active], frame, seed)
+    # Per active pixel quantities, computed once; samples expand them with
+    # np.repeat (a streaming copy) rather than random gathers.
+    sx_all, sy_all = pixel_hashes(geom.x[active], geom.y[active], frame, seed)
     act_counts = counts[active]
-    light32 = np.ascontiguousarray(light, dtype=np.float32)
+    gam = geom.gamma[active]
+    g_s = gsum[active]
+    # Channel c is chosen when edges[c] <= u < edges[c + 1], with edges the
+    # cumulative γ_c/Σγ; from the last channel with γ > 0 on, edges are set
+    # to exactly 1 so rounding can never select an empty channel.
+    edges = np.zeros((active.size, 4))
+    edges[:, 1:3] = np.cumsum(gam / g_s[:, None], axis=1)[:, :2]
+    last = 2 - np.argmax(gam[:, ::-1] > 0, axis=1)
+    edges[np.arange(4)[None, :] > last[:, None]] = 1.0
+    edges = edges.astype(np.float32)
+    lo_t = geom.lo[active].astype(np.float32)
+    hi_t = geom.hi[active].astype(np.float32)
+    mat_a = geom.mat[active]
+    x_a = geom.x[active].astype(np.float32)
+    y_a = geom.y[active].astype(np.float32)
+    inv_fw = (1.0 / geom.fw[active]).astype(np.float32)
+    inv_fh = (1.0 / geom.fh[active]).astype(np.float32)
+    idx_a = geom.index[active]
+    z_a = geom.depth[active].astype(np.float32)
+    slope = np.float32(depth_slope)
+    chrom_a = geom.chromatic[active]
+    ws_a = np.ascontiguousarray(geom.weight_scale[active].T, dtype=np.float32)
+    gam_cm = np.ascontiguousarray(gam.T, dtype=np.float32)
+    g_s32 = g_s.astype(np.float32)
+    # Channel-major lighting: one contiguous row per channel.
+    light_cm = np.ascontiguousarray(light.T, dtype=np.float32)
+    depth32 = depth_flat.astype(np.float32)
     for a, b in _chunks(act_counts, chunk_samples):
-        pix = active[a:b]
         c = act_counts[a:b]
         n = int(c.sum())
-        local = np.repeat(np.arange(b - a), c)
-        starts = np.cumsum(c) - c
-        k = np.arange(n) - np.repeat(starts, c) + 1
-        u, v = r2_points(sx_all[a:b][local], sy_all[a:b][local], k)
-        p = pix[local]
+        m = b - a
+        local = np.repeat(np.arange(m), c)
+        starts = (np.cumsum(c) - c).astype(np.uint32)
+        k = np.arange(1, n + 1, dtype=np.uint32) - np.repeat(starts, c)
+        u, v = r2_points_fixed(np.repeat(sx_all[a:b], c), np.repeat(sy_all[a:b], c), k,
+                               dtype=np.float32)
 
         # Pick channel c with probability γ_c/Σγ, then rescale u to reuse it.
-        c0 = geom.cum[p, 0]
-        c1 = geom.cum[p, 1]
-        ch = (u >= c0).astype(np.int64) + (u >= c1)
-        ch = np.where(geom.gamma[p, ch] > 0, ch, geom.top[p])
-        lo = np.where(ch == 0, 0.0, np.where(ch == 1, c0, c1))
-        width = geom.gamma[p, ch] / gsum[p]
-        uu = np.clip((u - lo) / width, 0.0, np.nextafter(1.0, 0.0))
+        e = edges[a:b]
+        ch = (u >= np.repeat(e[:, 1], c)).astype(np.intp) + (u >= np.repeat(e[:, 2], c))
+        e4 = local * 4 + ch
+        lo_sel = np.take(e, e4)
+        uu = (u - lo_sel) / (np.take(e, e4 + 1) - lo_sel)
+        np.clip(uu, 0.0, np.nextafter(np.float32(1.0), np.float32(0.0)), out=uu)
+        flat = local * 3 + ch
 
-        mat = geom.mat[p]
-        flat = p * 3 + ch
-        r = profile.sample(uu, np.take(geom.lo, flat), np.take(geom.hi, flat), mat, ch)
-        theta = TWO_PI * v
-        qx = np.rint(geom.x[p] + r * np.cos(theta) / geom.fw[p]).astype(np.int64)
-        qy = np.rint(geom.y[p] + r * np.sin(theta) / geom.fh[p]).astype(np.int64)
-        centre_idx = geom.index[p]
+        mat = np.repeat(mat_a[a:b], c)
+        r = profile.sample(uu, np.take(lo_t[a:b], flat), np.take(hi_t[a:b], flat), mat, ch)
+        r = r.astype(np.float32, copy=False)
+        theta = v
+        theta *= np.float32(TWO_PI)
+        qx = np.cos(theta)
+        qx *= r
+        qx *= np.repeat(inv_fw[a:b], c)
+        qx += np.repeat(x_a[a:b], c)
+        qy = np.sin(theta, out=theta)
+        qy *= r
+        qy *= np.repeat(inv_fh[a:b], c)
+        qy += np.repeat(y_a[a:b], c)
+        qx = np.rint(qx, out=qx)
+        qy = np.rint(qy, out=qy)
+        centre_idx = np.repeat(idx_a[a:b], c)
         inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
-        q = np.where(inside, qy * w + qx, centre_idx)
-        ok = inside & (mat_flat[q] == mat)
-        ok &= np.abs(depth_flat[q] - geom.depth[p]) <= depth_slope * r
+        q = np.where(inside, qy.astype(np.intp) * w + qx.astype(np.intp), centre_idx)
+        ok = inside & (np.take(mat_flat, q) == mat)
+        ok &= np.abs(np.take(depth32, q) - np.repeat(z_a[a:b], c)) <= slope * r
         fallback += n - int(np.count_nonzero(ok))
         # A rejected sample reads the centre, so its difference is exactly 0.
         q = np.where(ok, q, centre_idx)
-        diff = light32[q] - light32[centre_idx]
+        diff = np.take(light_cm, q, axis=1)
+        diff -= np.repeat(np.take(light_cm, idx_a[a:b], axis=1), c, axis=1)
 
-        if geom.chromatic[pix].any():
-            dens = profile.pdf(r, mat)
+        if chrom_a[a:b].any():
+            dens = profile.pdf_channels(r, mat)
             if profile.pixel_weight_scale:
-                dens = dens * geom.weight_scale[p]
-            norm = dens.sum(axis=1)
+                dens *= np.repeat(ws_a[:, a:b], c, axis=1)
+            norm = dens[0] + dens[1] + dens[2]
             with np.errstate(divide="ignore", invalid="ignore"):
-                scale = np.where(norm > 0, gsum[p] / norm, 0.0).astype(np.float32)
-            weight = dens * scale[:, None]
+                scale = np.where(norm > 0, np.repeat(g_s32[a:b], c) / norm, np.float32(0))
+            dens *= scale
+            diff *= dens
         else:  # one profile for all channels: w_c = γ_c exactly
-            weight = geom.gamma[p]
-        contrib = diff * weight
+            diff *= np.repeat(gam_cm[:, a:b], c, axis=1)
+        pix = active[a:b]
         for ci in range(3):
-            distant[pix, ci] += np.bincount(local, weights=contrib[:, ci], minlength=b - a) / c
+            distant[pix, ci] += np.bincount(local, weights=diff[ci], minlength=m) / c
     return DistantEstimate(distant, total, fallback)

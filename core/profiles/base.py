@@ -90,6 +90,14 @@ class Profile(ABC):
     #: Whether the estimator must multiply pdf by the per-pixel weight scale.
     pixel_weight_scale: bool = True
 
+    def pdf_channels(self, r: np.ndarray, mat: np.ndarray) -> np.ndarray:
+        """(3, N) float32 channel-major :meth:`pdf` (what the estimator uses).
+
+        Channel-major rows broadcast against (N,) per-sample arrays without
+        the cost of (N, 1) broadcasting; profiles may override for speed.
+        """
+        return np.ascontiguousarray(np.asarray(self.pdf(r, mat), dtype=np.float32).T)
+
     def describe(self, slot: int) -> dict:
         """Human-readable parameters of a slot (for reports and the UI)."""
         return {"profile": self.name, "slot": int(slot)}
