@@ -1,0 +1,149 @@
+"""Plots and previews of a demo run (matplotlib, Agg backend; no Blender).
+
+Reads ``<scene>/metrics.csv`` and the result EXRs written by ``cvsss post`` /
+``cvsss demo`` and writes PNGs next to the report:
+
+- ``<scene>_frames.png``: spp, sampling-pass time and PSNR per frame for AS,
+  AS+OCV and AS+CCV (the paper's Fig. 8);
+- ``<scene>_strip.png``: a strip of frames, composite above sample-count map;
+- ``pareto.png``: PSNR against pass time of every method and scene;
+- ``<scene>_preview_####.png``: composite and sample-count map side by side.
+
+Composites are shown display-referred (exposure, sRGB, clipped); sample-count
+maps use a fixed colour scale [0, β_max] so frames and methods compare.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from ..core.color import srgb_encode
+from ..core.exr import read_result
+from ..core.metrics import median3
+
+ADAPTIVE = (("as", "AS"), ("as_ocv", "AS + OCV"), ("as_ccv", "AS + CCV"))
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def read_metrics(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """``{method: {"frame", "spp", "pass_ms", "psnr_db"}}`` arrays from a metrics.csv."""
+    cols: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    with open(path, newline="", encoding="utf-8") as fh:
+        for row in csv.DictReader(fh):
+            c = cols[row["method"]]
+            c["frame"].append(int(row["frame"]))
+            c["spp"].append(float(row["spp"]))
+            c["pass_ms"].append(float(row["pass_ms"]))
+            c["psnr_db"].append(float(row["psnr_db"]) if row["psnr_db"] else np.nan)
+    return {m: {k: np.asarray(v) for k, v in c.items()} for m, c in cols.items()}
+
+
+def plot_frames(metrics: dict, path: Path, title: str) -> Path:
+    """Per-frame spp, pass time (3rd-order median) and PSNR of the adaptive methods."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
+    for name, label in ADAPTIVE:
+        if name not in metrics:
+            continue
+        m = metrics[name]
+        axes[0].plot(m["frame"], m["spp"], label=label)
+        axes[1].plot(m["frame"], median3(m["pass_ms"]), label=label)
+        ok = np.isfinite(m["psnr_db"])
+        axes[2].plot(m["frame"][ok], m["psnr_db"][ok], ".-", label=label)
+    axes[0].set_ylabel("mean spp (SSS pixels)")
+    axes[1].set_ylabel("sampling pass (ms)")
+    axes[2].set_ylabel("PSNR vs reference (dB)")
+    axes[2].set_xlabel("frame (60 fps)")
+    axes[0].legend(loc="upper right")
+    axes[0].set_title(title)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _display(rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
+    return srgb_encode(np.asarray(rgb) * exposure)
+
+
+def plot_strip(scene_dir: Path, method: str, frames: list[int], path: Path,
+               beta_max: int = 64, exposure: float = 1.0) -> Path:
+    """Composite (top) and sample-count map (bottom) for a few frames."""
+    plt = _pyplot()
+    n = len(frames)
+    fig, axes = plt.subplots(2, n, figsize=(2.6 * n, 3.4), squeeze=False)
+    im = None
+    for j, number in enumerate(frames):
+        res = read_result(scene_dir / method / f"{number:04d}.exr")
+        axes[0, j].imshow(_display(res["Composite"], exposure))
+        axes[0, j].set_title(f"frame {number}", fontsize=9)
+        counts = np.where(res["Mask"] > 0, res["SampleCount"], np.nan)
+        im = axes[1, j].imshow(counts, vmin=0, vmax=beta_max, cmap="viridis")
+        for ax in axes[:, j]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    axes[0, 0].set_ylabel("composite")
+    axes[1, 0].set_ylabel(f"{method} spp")
+    if im is not None:
+        fig.colorbar(im, ax=axes[1, :].tolist(), shrink=0.8, label="samples")
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_preview(scene_dir: Path, method: str, number: int, path: Path,
+                 beta_max: int = 64, exposure: float = 1.0) -> Path:
+    """One frame: composite and sample-count map side by side."""
+    plt = _pyplot()
+    res = read_result(scene_dir / method / f"{number:04d}.exr")
+    fig, axes = plt.subplots(1, 2, figsize=(8, 2.6))
+    axes[0].imshow(_display(res["Composite"], exposure))
+    axes[0].set_title(f"{method} composite, frame {number}", fontsize=9)
+    im = axes[1].imshow(np.where(res["Mask"] > 0, res["SampleCount"], np.nan),
+                        vmin=0, vmax=beta_max, cmap="viridis")
+    axes[1].set_title("samples per pixel", fontsize=9)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=axes[1], shrink=0.8)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_pareto(summary: dict, path: Path) -> Path:
+    """PSNR against mean sampling-pass time for every method and scene."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    markers = "os^vDP*X"
+    methods = sorted({m for s in summary.values() for m in s if m != "reference"})
+    for i, scene in enumerate(summary):
+        for j, method in enumerate(methods):
+            v = summary[scene].get(method)
+            if v is None or not np.isfinite(v["psnr_db"]):
+                continue
+            ax.scatter(v["pass_ms"], v["psnr_db"], marker=markers[j % len(markers)],
+                       color=f"C{i}", label=f"{scene}: {method}")
+    ax.set_xscale("log")
+    ax.set_xlabel("mean sampling pass (ms, log)")
+    ax.set_ylabel("mean PSNR vs reference (dB)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
