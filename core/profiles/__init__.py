@@ -1,6 +1,20 @@
 """Diffusion profiles (P Table 2) behind one interface, :class:`Profile`."""
 
+from .artist import ArtistProfile
 from .base import Profile, Region
 from .burley import BurleyProfile, blender_shape
+from .dipole import DipoleProfile
+from .factory import PROFILE_NAMES, MixedProfile, ProfileChoice, make_profile_factory
 
-__all__ = ["BurleyProfile", "Profile", "Region", "blender_shape"]
+__all__ = [
+    "PROFILE_NAMES",
+    "ArtistProfile",
+    "BurleyProfile",
+    "DipoleProfile",
+    "MixedProfile",
+    "Profile",
+    "ProfileChoice",
+    "Region",
+    "blender_shape",
+    "make_profile_factory",
+]
