@@ -86,13 +86,16 @@ def update_history(
     mu_prev = np.where(valid, np.asarray(mu, dtype=np.float64), s)
     var_prev = np.where(valid, np.asarray(var, dtype=np.float64), params.target_variance)
     mbar_prev = np.where(valid, np.asarray(mbar, dtype=np.float64), params.initial_count)
-    dev = s - mu_prev
-    with np.errstate(over="ignore"):
+    # Overflow (HDR, huge exposure) saturates instead of leaking inf/NaN into
+    # the history; see tests/core/test_stability.py.
+    with np.errstate(over="ignore", invalid="ignore"):
+        dev = s - mu_prev
         var_new = (1.0 - eta) * var_prev + eta * (1.0 - eta) * dev * dev
+        mu_new = np.where(valid, (1.0 - eta) * mu_prev + eta * s, s)
+        mbar_new = (1.0 - eta) * mbar_prev + eta * np.asarray(counts, dtype=np.float64)
     var_new = np.where(valid, var_new, params.target_variance)
-    mu_new = np.where(valid, (1.0 - eta) * mu_prev + eta * s, s)
-    mbar_new = (1.0 - eta) * mbar_prev + eta * counts
     big = np.finfo(np.float64).max
-    var_new = np.nan_to_num(var_new, nan=params.target_variance, posinf=big)
+    var_new = np.maximum(np.nan_to_num(var_new, nan=params.target_variance, posinf=big), 0.0)
     mu_new = np.nan_to_num(mu_new, nan=0.0, posinf=big, neginf=-big)
+    mbar_new = np.nan_to_num(mbar_new, nan=params.initial_count, posinf=big, neginf=0.0)
     return mu_new, var_new, mbar_new, np.asarray(counts) > 0

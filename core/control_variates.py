@@ -130,12 +130,16 @@ def cv_coefficient(
     """
     s_xy = np.asarray(s_xy, dtype=np.float64)
     s_yy = np.asarray(s_yy, dtype=np.float64)
-    num = s_xy + eps_alpha
-    den = s_yy + eps_alpha
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        num = s_xy + eps_alpha
+        den = s_yy + eps_alpha
         alpha = np.where(den > 0, num / den, 1.0)
         upper = np.where(g_bar > 0, (np.maximum(f_bar, 0.0) + g_bar) / g_bar, 1.0)
-    alpha = np.nan_to_num(alpha, nan=1.0, posinf=np.inf, neginf=0.0)
+    # A bound or ratio that overflowed (ḡ subnormal, Σ_yy tiny) is capped at
+    # the largest float so α stays finite (and Res = f̄ − α·G with it).
+    big = np.finfo(np.float64).max
+    upper = np.nan_to_num(upper, nan=1.0, posinf=big)
+    alpha = np.nan_to_num(alpha, nan=1.0, posinf=big, neginf=0.0)
     return np.clip(alpha, 0.0, upper)
 
 

@@ -17,6 +17,9 @@ from .camera import Camera
 #: Depths at or beyond this (Blender writes 1e10 for the background) are "no surface".
 BACKGROUND_DEPTH = 1e9
 
+#: Motion vectors are clipped to ±this many pixels (far beyond any image).
+MAX_MOTION = 1e7
+
 
 @dataclass(frozen=True)
 class MaterialSpec:
@@ -98,7 +101,10 @@ class Frame:
     source : str or None
         File the frame was read from (for messages).
     repaired : int
-        Input values replaced by 0 because non-finite or negative.
+        Input values replaced because unusable: non-finite or negative
+        lighting, albedo and combined values (-> 0), NaN depths
+        (-> background), non-finite material indices (-> 0, no SSS) and
+        motion vectors (-> 0, static).
     lighting_passes : tuple of str
         Passes summed into B (e.g. Diffuse Direct, Diffuse Indirect).
     """
@@ -128,23 +134,32 @@ class Frame:
             )
         repaired = 0
         for name in ("lighting", "albedo", "combined"):
-            a = _clean(name, getattr(self, name), shape, 3).astype(np.float32, copy=True)
+            with np.errstate(over="ignore", invalid="ignore"):  # > float32 max: inf, repaired
+                a = _clean(name, getattr(self, name), shape, 3).astype(np.float32, copy=True)
             bad = ~np.isfinite(a) | (a < 0)
             n_bad = int(np.count_nonzero(bad))
             if n_bad:
                 a[bad] = 0.0
                 repaired += n_bad
             setattr(self, name, a)
-        d = depth.astype(np.float32, copy=True)
+        # +inf depth is how half-float files store the background; NaN is not
+        # a depth at all, so it counts as repaired (and becomes background).
+        repaired += int(np.count_nonzero(np.isnan(depth)))
+        with np.errstate(over="ignore", invalid="ignore"):
+            d = depth.astype(np.float32, copy=True)
         d[~np.isfinite(d) | (d <= 0) | (d >= BACKGROUND_DEPTH)] = np.inf
         self.depth = d
-        m = _clean("material", self.material, shape, None)
-        m = np.nan_to_num(np.asarray(m, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        m = np.asarray(_clean("material", self.material, shape, None), dtype=np.float64)
+        repaired += int(np.count_nonzero(~np.isfinite(m)))
+        m = np.nan_to_num(m, nan=0.0, posinf=0.0, neginf=0.0)
         self.material = np.clip(np.rint(m), 0, 2**31 - 1).astype(np.int32)
         if self.motion is not None:
-            mv = _clean("motion", self.motion, shape, 2).astype(np.float32, copy=True)
-            mv[~np.isfinite(mv)] = 0.0
-            self.motion = mv
+            mv = np.asarray(_clean("motion", self.motion, shape, 2), dtype=np.float64)
+            bad = ~np.isfinite(mv)
+            repaired += int(np.count_nonzero(bad))
+            # Motion beyond any image size only ever means "came from off screen".
+            mv = np.clip(np.where(bad, 0.0, mv), -MAX_MOTION, MAX_MOTION)
+            self.motion = mv.astype(np.float32)
         for slot, spec in self.materials.items():
             if slot != spec.slot:
                 raise ValueError(f"material table key {slot} does not match slot {spec.slot}")

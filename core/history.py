@@ -8,15 +8,31 @@ Two histories per pixel, as in the paper (P Alg. 3):
 
 Buffers are full-image (H, W) arrays stored in float32 or, to mimic GPU
 RGBA16F render targets, float16. Arithmetic always happens in float64; only
-storage rounds. In float16 the covariance entries are stored divided by η_cv:
-with the paper's η_cv = 1e-6, Σ ≈ η_cv·(ΔZ)² would sit below float16's
-smallest subnormal (6e-8) and flush to zero, whereas Σ/η_cv ≈ (ΔZ)² is well
-inside the float16 range. Stored values are clipped to the finite range of
-the storage type so HDR input never turns into inf.
+storage rounds. Stored values are clipped to the finite range of the storage
+type so HDR input never turns into inf.
+
+float16 storage is scaled so that what the algorithm compares lands in the
+half-precision range (measured by ``python -m cvsss.core.studies.fp16``):
+
+- the covariance entries are stored divided by η_cv. With the paper's
+  η_cv = 1e-6, Σ ≈ η_cv·(ΔZ)² sits below float16's smallest subnormal
+  (6e-8) and flushes to zero, which silently turns the online control
+  variate into α = 1; Σ/η_cv ≈ n·(ΔZ)² after n frames is well inside the
+  range (it saturates at 65504 only once n·Var(Z) exceeds it);
+- the tracked variance is stored divided by σ0²: the counts depend on
+  σ²/σ0² only, the no-history value is exactly 1, and σ0² = 1e-12 (which
+  would flush to 0 and drive counts to β_min) or σ0² = 1e6 (which would
+  overflow 65504 and drive counts to β_min) stay representable. A stored
+  ratio that saturates at 65504 already asks for more than β_max ≤ 4096.
+
+μ, m̄ and ζ are stored unscaled: a tracked (exposure-scaled) luminance above
+65504 saturates in float16, so HDR sequences need ``exposure`` or float32.
+float32 storage is never scaled.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 from dataclasses import dataclass, field
@@ -29,6 +45,10 @@ COV_FIELDS = ("sxx", "sxy", "syy")
 
 #: Relative depth change beyond which a reprojected history is rejected.
 REPROJECT_DEPTH_TOLERANCE = 0.1
+
+
+_FINITE_MAX = {"float32": float(np.finfo(np.float32).max),
+               "float16": float(np.finfo(np.float16).max)}
 
 
 def _storage(dtype: str) -> np.dtype:
@@ -46,6 +66,8 @@ class History:
     cov_scale : float
         Stored covariance = true covariance × ``cov_scale`` (1/η_cv in
         float16, 1 in float32).
+    var_scale : float
+        Stored σ² = true σ² × ``var_scale`` (1/σ0² in float16, 1 in float32).
     frame : int or None
         Frame number of the last update (None = empty).
     buffers : dict of (H, W) arrays in the storage dtype (μ, σ², m̄, Σ, ζ)
@@ -64,16 +86,38 @@ class History:
     cv_valid: np.ndarray | None = None
     material: np.ndarray | None = None
     depth: np.ndarray | None = None
+    var_scale: float = 1.0
 
     @classmethod
-    def empty(cls, shape: tuple[int, int], precision: str = "float32", eta_cv: float = 1.0) -> History:
+    def empty(
+        cls,
+        shape: tuple[int, int],
+        precision: str = "float32",
+        eta_cv: float = 1.0,
+        target_variance: float = 1.0,
+        *,
+        scaled: bool = True,
+    ) -> History:
+        """An all-invalid history.
+
+        Parameters
+        ----------
+        shape : (H, W)
+        precision : {"float32", "float16"}
+        eta_cv : float in (0, 1], η_cv (float16 covariance scale 1/η_cv)
+        target_variance : float > 0, σ0² (float16 variance scale 1/σ0²)
+        scaled : bool
+            False stores float16 values unscaled, which underflows at the
+            paper's η_cv (kept only to measure that; see module doc).
+        """
         dt = _storage(precision)
-        cov_scale = 1.0 / eta_cv if precision == "float16" else 1.0
+        half = precision == "float16" and scaled
         buffers = {name: np.zeros(shape, dtype=dt) for name in (*H_FIELDS, *J_FIELDS)}
         return cls(
             shape=tuple(shape),
             precision=precision,
-            cov_scale=cov_scale,
+            cov_scale=1.0 / eta_cv if half else 1.0,
+            var_scale=1.0 / target_variance if half else 1.0,
             buffers=buffers,
             valid=np.zeros(shape, dtype=bool),
             cv_valid=np.zeros(shape, dtype=bool),
@@ -86,20 +130,34 @@ class History:
         return _storage(self.precision)
 
     # -- access -------------------------------------------------------------
+    def scale(self, name: str) -> float:
+        """Stored value of buffer ``name`` = true value × this factor."""
+        if name in COV_FIELDS:
+            return self.cov_scale
+        if name == "var":
+            return self.var_scale
+        return 1.0
+
     def read(self, name: str, index: np.ndarray) -> np.ndarray:
         """Values of a buffer at flat pixel ``index`` as float64, true units."""
         v = self.buffers[name].reshape(-1)[index].astype(np.float64)
-        if name in COV_FIELDS:
-            v /= self.cov_scale
+        scale = self.scale(name)
+        if scale != 1.0:
+            v /= scale
         return v
 
     def write(self, name: str, index: np.ndarray, values: np.ndarray) -> None:
         """Store float64 ``values`` (true units) at flat ``index``, rounding to storage."""
         v = np.asarray(values, dtype=np.float64)
-        if name in COV_FIELDS:
-            v = v * self.cov_scale
-        big = float(np.finfo(self.dtype).max)
-        v = np.clip(np.nan_to_num(v, nan=0.0, posinf=big, neginf=-big), -big, big)
+        scale = self.scale(name)
+        if scale != 1.0:
+            with np.errstate(over="ignore"):
+                v = v * scale
+        big = _FINITE_MAX["float16" if self.precision == "float16" else "float32"]
+        v = np.clip(v, -big, big)  # ±inf -> ±big; NaN stays NaN ...
+        nan = np.isnan(v)
+        if nan.any():
+            v[nan] = 0.0  # ... and is stored as 0
         self.buffers[name].reshape(-1)[index] = v.astype(self.dtype)
 
     def nbytes(self) -> int:
@@ -139,9 +197,14 @@ class History:
             inside = np.ones(h * w, dtype=bool)
         else:
             yy, xx = np.mgrid[0:h, 0:w]
-            px = np.rint(xx + motion[..., 0]).astype(np.int64).reshape(-1)
-            py = np.rint(yy + motion[..., 1]).astype(np.int64).reshape(-1)
-            inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+            fx = (xx + np.asarray(motion[..., 0], dtype=np.float64)).reshape(-1)
+            fy = (yy + np.asarray(motion[..., 1], dtype=np.float64)).reshape(-1)
+            # Huge or non-finite motion points off screen; clip before the
+            # integer cast so it cannot overflow.
+            finite = np.isfinite(fx) & np.isfinite(fy)
+            px = np.rint(np.clip(np.where(finite, fx, -1.0), -1.0, w)).astype(np.int64)
+            py = np.rint(np.clip(np.where(finite, fy, -1.0), -1.0, h)).astype(np.int64)
+            inside = finite & (px >= 0) & (px < w) & (py >= 0) & (py < h)
             src = np.where(inside, py * w + px, 0)
         prev_depth = self.depth.reshape(-1)[src].astype(np.float64)
         cur_depth = depth.reshape(-1).astype(np.float64)
@@ -152,6 +215,7 @@ class History:
             shape=self.shape,
             precision=self.precision,
             cov_scale=self.cov_scale,
+            var_scale=self.var_scale,
             frame=self.frame,
             buffers={k: v.reshape(-1)[src].reshape(self.shape) for k, v in self.buffers.items()},
             valid=(self.valid.reshape(-1)[src] & same).reshape(self.shape),
@@ -162,44 +226,75 @@ class History:
         return out
 
     # -- checkpoints --------------------------------------------------------
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the history atomically as a compressed ``.npz`` checkpoint."""
-        path = os.fspath(path)
-        arrays = {f"buf_{k}": v for k, v in self.buffers.items()}
+    def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """Every field as named arrays (exact: storage dtypes are kept).
+
+        :meth:`from_arrays` inverts it bit for bit, so a sequence resumed
+        from a checkpoint continues exactly as an uninterrupted run.
+        """
         meta = np.array([self.shape[0], self.shape[1], -1 if self.frame is None else self.frame])
-        buf = io.BytesIO()
-        np.savez_compressed(
-            buf,
-            meta=meta,
-            precision=np.array(self.precision),
-            cov_scale=np.array(self.cov_scale),
-            valid=self.valid,
-            cv_valid=self.cv_valid,
-            material=self.material,
-            depth=self.depth,
-            **arrays,
+        arrays = {
+            "meta": meta,
+            "precision": np.array(self.precision),
+            "cov_scale": np.array(self.cov_scale, dtype=np.float64),
+            "var_scale": np.array(self.var_scale, dtype=np.float64),
+            "valid": self.valid,
+            "cv_valid": self.cv_valid,
+            "material": self.material,
+            "depth": self.depth,
+            **{f"buf_{k}": v for k, v in self.buffers.items()},
+        }
+        return {prefix + k: v for k, v in arrays.items()}
+
+    @classmethod
+    def from_arrays(cls, arrays, prefix: str = "") -> History:
+        """Inverse of :meth:`to_arrays` (``arrays``: a mapping or an open ``.npz``)."""
+        def get(key: str) -> np.ndarray:
+            return np.asarray(arrays[prefix + key]).copy()
+
+        keys = list(arrays.keys()) if hasattr(arrays, "keys") else list(arrays.files)
+        h, w, frame = (int(v) for v in get("meta"))
+        start = prefix + "buf_"
+        buffers = {k[len(start):]: np.asarray(arrays[k]).copy() for k in keys if k.startswith(start)}
+        # Checkpoints written before var_scale existed stored σ² unscaled.
+        var_scale = float(get("var_scale")) if prefix + "var_scale" in keys else 1.0
+        return cls(
+            shape=(h, w),
+            precision=str(get("precision")),
+            cov_scale=float(get("cov_scale")),
+            var_scale=var_scale,
+            frame=None if frame < 0 else frame,
+            buffers=buffers,
+            valid=get("valid"),
+            cv_valid=get("cv_valid"),
+            material=get("material"),
+            depth=get("depth"),
         )
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the history atomically as a compressed ``.npz`` checkpoint.
+
+        The data goes to a temporary file beside ``path`` that is synced and
+        renamed, so ``path`` holds either the previous or the new checkpoint,
+        never a partial one; the temporary file is removed on failure.
+        """
+        path = os.fspath(path)
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **self.to_arrays())
         tmp = f"{path}.tmp-{os.getpid()}"
-        with open(tmp, "wb") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(buf.getvalue())
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> History:
         """Read a checkpoint written by :meth:`save`."""
         with np.load(os.fspath(path), allow_pickle=False) as data:
-            h, w, frame = (int(v) for v in data["meta"])
-            buffers = {k[4:]: data[k].copy() for k in data.files if k.startswith("buf_")}
-            return cls(
-                shape=(h, w),
-                precision=str(data["precision"]),
-                cov_scale=float(data["cov_scale"]),
-                frame=None if frame < 0 else frame,
-                buffers=buffers,
-                valid=data["valid"].copy(),
-                cv_valid=data["cv_valid"].copy(),
-                material=data["material"].copy(),
-                depth=data["depth"].copy(),
-            )
+            return cls.from_arrays(data)

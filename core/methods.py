@@ -70,6 +70,13 @@ METHODS: dict[str, Method] = {
             "Many samples per pixel (default 1024) from an independent random stream",
             "reference",
         ),
+        Method(
+            "separable",
+            "Separable",
+            "Jimenez et al. 2015 separable SSS: two 1D passes per kernel term "
+            "(pre-integrated, SVD rank-k, sum of Gaussians or artist kernel)",
+            "separable",
+        ),
     )
 }
 

@@ -26,6 +26,9 @@ from .profiles import BurleyProfile, Profile
 #: XOR salt giving the reference its own random stream.
 REFERENCE_SALT = 0x9E3779B9
 
+#: Bound on the tracked luminances f̄, G (their squares stay finite in float64).
+TRACK_LIMIT = 1e150
+
 
 @dataclass
 class FrameResult:
@@ -73,9 +76,24 @@ class FrameResult:
     repaired: int = 0
 
 
+def _bounded(values: np.ndarray) -> np.ndarray:
+    """``values`` clipped to ±TRACK_LIMIT, NaN -> 0."""
+    out = np.clip(values, -TRACK_LIMIT, TRACK_LIMIT)
+    nan = np.isnan(out)
+    if nan.any():
+        out[nan] = 0.0
+    return out
+
+
 def default_profile(frame: Frame, params: SSSParams) -> Profile:
-    """Burley profile from the frame's material table (scene units)."""
-    return BurleyProfile(frame.d_table(), truncate=params.truncate, inverse=params.burley_inverse)
+    """Profile of the frame's materials (scene units): each MaterialSpec's ``profile``
+    and ``options`` (core.profiles.factory); plain Burley when none asks otherwise."""
+    if all(s.profile == "burley" and not s.options for s in frame.materials.values()):
+        return BurleyProfile(frame.d_table(), truncate=params.truncate,
+                             inverse=params.burley_inverse)
+    from .profiles.factory import frame_profile
+
+    return frame_profile(frame, params)
 
 
 class SequenceProcessor:
@@ -87,8 +105,13 @@ class SequenceProcessor:
         A name of ``core.methods.METHODS``.
     params : SSSParams
     profile_factory : callable (Frame, SSSParams) -> Profile, optional
-        Builds the profile of a frame; defaults to Burley from the frame's
-        materials. Rebuilt only when the material table changes.
+        Builds the profile of a frame; defaults to :func:`default_profile`
+        (see also core.profiles.factory.make_profile_factory). Rebuilt only
+        when the material table changes.
+    separable : core.separable.SeparableParams, optional
+        Kernel, taps and jitter of the ``separable`` method (which
+        :meth:`process` delegates to core.separable); default
+        ``SeparableParams()``.
     """
 
     def __init__(
@@ -96,15 +119,21 @@ class SequenceProcessor:
         method: str,
         params: SSSParams | None = None,
         profile_factory: Callable[[Frame, SSSParams], Profile] | None = None,
+        separable=None,
     ) -> None:
         self.method: Method = get_method(method)
-        if self.method.counts == "separable":
-            raise ValueError("the separable method is run by core.separable, not SequenceProcessor")
         self.params = params or SSSParams()
         self.profile_factory = profile_factory or default_profile
         self.history: History | None = None
         self._profile_key = None
         self._profile: Profile | None = None
+        self._separable = None
+        if self.method.counts == "separable":
+            from .separable import SeparableParams, SeparableProcessor
+
+            self._separable = SeparableProcessor(
+                self.params, separable or SeparableParams(), self._profile_for, self.method.name
+            )
 
     # -- helpers ---------------------------------------------------------------
     def _profile_for(self, frame: Frame) -> Profile:
@@ -147,6 +176,8 @@ class SequenceProcessor:
         -------
         FrameResult
         """
+        if self._separable is not None:
+            return self._separable.process(frame)
         t_start = time.perf_counter()
         p = self.params
         profile = self._profile_for(frame)
@@ -159,7 +190,9 @@ class SequenceProcessor:
                         f"frame {frame.number} is {frame.shape[1]}x{frame.shape[0]} but the "
                         f"sequence started at {self.history.shape[1]}x{self.history.shape[0]}"
                     )
-                self.history = History.empty(frame.shape, p.history_precision, p.eta_cv)
+                self.history = History.empty(
+                    frame.shape, p.history_precision, p.eta_cv, p.target_variance
+                )
             hist = self.history.reproject(frame.motion, frame.depth, frame.material)
         m, valid = self._counts(geom, hist)
         if counts is not None:
@@ -220,8 +253,13 @@ class SequenceProcessor:
         """History (and CV) update after sampling; returns (α, σ²) per SSS pixel."""
         p = self.params
         idx = geom.index
-        f_bar = (distant * p.exposure) @ REC709
-        g_known = ((geom.gamma * b) * p.exposure) @ REC709
+        # Tracked luminances are bounded so that their squares (σ², Σ) stay
+        # finite in float64 whatever the exposure and HDR input.
+        with np.errstate(over="ignore", invalid="ignore"):
+            f_bar = (distant * p.exposure) @ REC709
+            g_known = ((geom.gamma * b) * p.exposure) @ REC709
+        f_bar = _bounded(f_bar)
+        g_known = _bounded(g_known)
         alpha = np.zeros(geom.size)
         cv = self.method.cv
         if cv == "online":
