@@ -6,7 +6,6 @@ from bpy.types import Operator
 
 from ..demo_blend import scenes
 
-
 # Blender keeps only pointers to the strings of dynamic enum items: hold them here.
 _ITEMS: list[tuple[str, str, str]] = []
 

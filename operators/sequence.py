@@ -12,10 +12,10 @@ import traceback
 import bpy
 from bpy.types import Operator
 
-from ..sss_addon import render
-from ..sss_addon.passes import RenderError
 from ..core.exr import OutputError, PassError
 from ..core.params import ParameterError
+from ..sss_addon import render
+from ..sss_addon.passes import RenderError
 
 #: Problems the user can fix: reported without a traceback.
 USER_ERRORS = (RenderError, ParameterError, PassError, OutputError, FileExistsError)
@@ -55,6 +55,10 @@ class _SteppedOperator:
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
+        return self.start_modal(context)
+
+    def start_modal(self, context):
+        """Start the job and a timer; ``modal`` then advances one frame per tick."""
         try:
             self._job, self._steps = self.steps(context)
         except Exception as exc:
@@ -80,7 +84,7 @@ class _SteppedOperator:
         self._status(context, None)
 
     def modal(self, context, event):
-        if event.type == "ESC":
+        if event.type == "ESC" and event.value == "PRESS":
             self._steps.close()  # restores the scene; finished frames stay on disk
             self._stop(context)
             self.report({"WARNING"}, "Cancelled: " + self._summary(self._job, self._done))
@@ -99,8 +103,9 @@ class _SteppedOperator:
             return {"CANCELLED"}
         self._done = step.index
         context.window_manager.progress_update(step.index)
-        self._status(context, f"cvsss: frame {step.frame} ({step.index}/{step.total}), "
-                              "ESC to cancel")
+        self._status(
+            context, f"cvsss: frame {step.frame} ({step.index}/{step.total}), ESC to cancel"
+        )
         for area in context.screen.areas if context.screen else ():
             area.tag_redraw()
         return {"RUNNING_MODAL"}
@@ -140,15 +145,17 @@ class SSS_OT_apply_frame(Operator):
         scene = context.scene
         frame = scene.frame_current
         try:
-            job = render.job_from_scene(scene, frames=(frame, frame), context=context,
-                                        images=True)
+            job = render.job_from_scene(scene, frames=(frame, frame), context=context, images=True)
             step = render.apply_frame(job)
         except Exception as exc:
             self.report({"ERROR"}, _message(exc))
             return {"CANCELLED"}
         result = step.results[job.display]
-        self.report({"INFO"}, f"Frame {frame} ({job.display}): mean spp {result.spp:.2f}, "
-                              f"pass {result.pass_ms:.1f} ms")
+        self.report(
+            {"INFO"},
+            f"Frame {frame} ({job.display}): mean spp {result.spp:.2f}, "
+            f"pass {result.pass_ms:.1f} ms",
+        )
         return {"FINISHED"}
 
 

@@ -8,9 +8,8 @@ Data maps are tagged Non-Color; the result stays scene-linear.
 
 from __future__ import annotations
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from ..core.pipeline import FrameResult
 

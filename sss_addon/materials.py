@@ -14,6 +14,7 @@ puts every value, link and mute flag back, also on error.
 from __future__ import annotations
 
 import contextlib
+import importlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -81,12 +82,45 @@ def principled_shape(material) -> tuple[float, float, float] | None:
     return tuple(float(v) for v in blender_shape(tuple(radius), float(scale)))
 
 
-def material_shape(material) -> tuple[float, float, float]:
-    """Burley ``d`` used for ``material``: the override, else the Principled BSDF's."""
+def _presets():
+    """core.profiles.presets when the core ships it (measured materials), else None."""
+    try:
+        return importlib.import_module("..core.profiles.presets", __package__)
+    except ImportError:
+        return None
+
+
+def _mm_per_unit(scene) -> float:
+    # Millimetres per scene unit: 1000 for metres, times Blender's unit scale.
+    scale_length = float(scene.unit_settings.scale_length) if scene is not None else 1.0
+    return 1000.0 * (scale_length if scale_length > 0 else 1.0)
+
+
+def preset_shape(material, scene=None) -> tuple[float, float, float] | None:
+    """Burley ``d`` (scene units) of the material's measured preset, or None.
+
+    ``d = ℓ/s(A_tot)`` of the preset (core.profiles.presets) times the
+    material's ``preset_scale``, converted with the scene's unit scale.
+    None when no preset is chosen or the core has no preset table.
+    """
+    settings = _settings(material)
+    if settings is None or settings.preset == "NONE":
+        return None
+    presets = _presets()
+    if presets is None:
+        return None
+    measured = presets.get(settings.preset.lower())
+    d = measured.burley_d(mm_per_unit=_mm_per_unit(scene), scale=float(settings.preset_scale))
+    return tuple(float(v) for v in d)
+
+
+def material_shape(material, scene=None) -> tuple[float, float, float]:
+    """Burley ``d`` used for ``material``: the override, else its measured preset,
+    else the Principled BSDF's."""
     settings = _settings(material)
     if settings is not None and settings.use_override:
         return tuple(float(v) for v in settings.d_override)
-    shape = principled_shape(material)
+    shape = preset_shape(material, scene) or principled_shape(material)
     if shape is None:
         raise ValueError(
             f"material {material.name!r} takes part but has no Principled BSDF; "
@@ -119,18 +153,26 @@ def participating(scene, view_layer=None) -> list:
     return [m for m in scene_materials(scene, view_layer) if participates(m)]
 
 
-def material_specs(materials: Iterable) -> list[MaterialSpec]:
-    """MaterialSpec per participating material; slots 1..K in the given order."""
+def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
+    """MaterialSpec per participating material; slots 1..K in the given order.
+
+    A chosen measured preset travels in ``options`` (name, scale and the
+    scene's millimetres per unit) so the core can build its dipole profile.
+    """
     specs = []
     for slot, material in enumerate(materials, 1):
         settings = _settings(material)
         options = {}
         if settings is not None and settings.preset != "NONE":
-            # core.profiles has no preset table yet: the choice travels with the passes.
-            options["preset"] = settings.preset.lower()
+            options = {
+                "preset": settings.preset.lower(),
+                "preset_scale": float(settings.preset_scale),
+                "mm_per_unit": _mm_per_unit(scene),
+            }
         specs.append(
-            MaterialSpec(slot=slot, name=material.name, d=material_shape(material),
-                         options=options)
+            MaterialSpec(
+                slot=slot, name=material.name, d=material_shape(material, scene), options=options
+            )
         )
     return specs
 
@@ -179,8 +221,12 @@ class SSSDisabled(contextlib.AbstractContextManager):
                 for tree, node in principled_nodes(material.node_tree):
                     socket = node.inputs[WEIGHT]
                     path = socket.path_from_id("default_value")
-                    saved = _SavedSocket(tree, node.name, float(socket.default_value),
-                                         [link.from_socket for link in socket.links])
+                    saved = _SavedSocket(
+                        tree,
+                        node.name,
+                        float(socket.default_value),
+                        [link.from_socket for link in socket.links],
+                    )
                     self.saved.append(saved)
                     for fcurve in _fcurves(tree.animation_data):
                         if fcurve.data_path == path:

@@ -116,6 +116,13 @@ class SSS_PT_material(Panel):
         col.active = m.use_override
         col.prop(m, "d_override")
         layout.prop(m, "preset")
+        if m.preset != "NONE":
+            layout.prop(m, "preset_scale")
+            d = sss_materials.preset_shape(material, context.scene)
+            if d is None:
+                layout.label(text="Preset stored; the core has no preset table", icon="INFO")
+            else:
+                layout.label(text="Preset d: R {:.5g}  G {:.5g}  B {:.5g}".format(*d))
 
 
 classes = (SSS_PT_render, SSS_PT_material)

@@ -10,19 +10,29 @@ Passes enabled on the rendered view layer: Combined, Depth (``use_pass_z``),
 Material Index, Vector (motion blur off), Diffuse Direct / Indirect / Color
 and optionally Normal; every other pass is switched off. Denoising,
 compositing and the sequencer are off; output is a 32-bit multilayer EXR.
+
+EEVEE has no Material Index pass (nor Diffuse Indirect: its Diffuse Light is
+written as Diffuse Direct). For EEVEE the slot is written by an AOV Output
+node added to each participating material (value AOV ``cvsss_material``),
+and the EXR is rewritten after the render so that AOV becomes the
+``Material Index`` pass (rounded: EEVEE filters AOVs) and the background
+depth, which EEVEE writes as the clip end, becomes 1e10 as in Cycles.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import bpy
+import numpy as np
+import OpenEXR
 
 from ..core.camera import Camera
-from ..core.exr import OutputError, make_sidecar, write_sidecar
+from ..core.exr import BACKGROUND_DEPTH_WRITTEN, OutputError, make_sidecar, write_sidecar
 from ..core.frame import MaterialSpec
 from . import materials as sss_materials
 
@@ -55,7 +65,7 @@ def rna_values(struct, nested: Iterable[str] = ()) -> dict:
             continue
         if prop.type == "ENUM" and prop.is_enum_flag:
             value = frozenset(value)
-        elif prop.type != "STRING" and hasattr(value, "__len__"):
+        elif not isinstance(value, str) and hasattr(value, "__len__"):
             value = tuple(value)
         values[ident] = value
     for name in nested:
@@ -70,10 +80,13 @@ _FIRST = ("engine", "media_type", "file_format", "color_mode", "color_depth")
 
 
 def restore_rna(struct, values: dict) -> None:
-    """Set every recorded value that differs; pointers recurse. Errors are ignored
-    per property so one unsettable value does not block the others."""
+    """Set every recorded value that differs; pointers recurse.
+
+    One value that cannot be set does not block the others; what still fails
+    on the second pass is reported on stderr.
+    """
     keys = sorted(values, key=lambda k: _FIRST.index(k) if k in _FIRST else len(_FIRST))
-    for _ in range(2):  # a second pass settles values that depend on one another
+    for attempt in range(2):  # a second pass settles values that depend on one another
         for key in keys:
             value = values[key]
             if isinstance(value, dict):
@@ -89,8 +102,9 @@ def restore_rna(struct, values: dict) -> None:
                     current = tuple(current)
                 if current != value:
                     setattr(struct, key, set(value) if isinstance(value, frozenset) else value)
-            except (AttributeError, TypeError, ValueError, RuntimeError):
-                continue
+            except (AttributeError, TypeError, ValueError, RuntimeError) as exc:
+                if attempt:
+                    print(f"cvsss: could not restore {struct!r}.{key}: {exc}", file=sys.stderr)
 
 
 # -- scene queries ------------------------------------------------------------------------
@@ -109,8 +123,10 @@ def render_view_layer(scene, context=None):
 def output_size(scene) -> tuple[int, int]:
     """(width, height) in pixels after the resolution percentage, as Blender computes it."""
     r = scene.render
-    return (r.resolution_x * r.resolution_percentage // 100,
-            r.resolution_y * r.resolution_percentage // 100)
+    return (
+        r.resolution_x * r.resolution_percentage // 100,
+        r.resolution_y * r.resolution_percentage // 100,
+    )
 
 
 def scene_camera(scene) -> Camera:
@@ -127,11 +143,18 @@ def scene_camera(scene) -> Camera:
     width, height = output_size(scene)
     r = scene.render
     return Camera(
-        width=width, height=height, type=cam.type, lens=float(cam.lens),
-        sensor_width=float(cam.sensor_width), sensor_height=float(cam.sensor_height),
-        sensor_fit=cam.sensor_fit, ortho_scale=float(cam.ortho_scale),
-        pixel_aspect_x=float(r.pixel_aspect_x), pixel_aspect_y=float(r.pixel_aspect_y),
-        clip_start=float(cam.clip_start), clip_end=float(cam.clip_end),
+        width=width,
+        height=height,
+        type=cam.type,
+        lens=float(cam.lens),
+        sensor_width=float(cam.sensor_width),
+        sensor_height=float(cam.sensor_height),
+        sensor_fit=cam.sensor_fit,
+        ortho_scale=float(cam.ortho_scale),
+        pixel_aspect_x=float(r.pixel_aspect_x),
+        pixel_aspect_y=float(r.pixel_aspect_y),
+        clip_start=float(cam.clip_start),
+        clip_end=float(cam.clip_end),
     )
 
 
@@ -146,6 +169,9 @@ def engine_identifier(scene, engine: str) -> str:
 
 
 # -- the pass configuration -----------------------------------------------------------------
+#: Value AOV that carries the material slot when the engine has no Material Index pass.
+AOV_NAME = "cvsss_material"
+
 NEEDED_PASSES = (
     "use_pass_combined",
     "use_pass_z",
@@ -173,8 +199,9 @@ class PassSetup(contextlib.AbstractContextManager):
         Also enable the Normal pass.
     """
 
-    def __init__(self, scene, materials, view_layer, engine: str = "CYCLES",
-                 normal: bool = False) -> None:
+    def __init__(
+        self, scene, materials, view_layer, engine: str = "CYCLES", normal: bool = False
+    ) -> None:
         self.scene = scene
         self.materials = list(materials)
         self.view_layer = view_layer
@@ -183,6 +210,8 @@ class PassSetup(contextlib.AbstractContextManager):
         self._saved: list[tuple[object, dict]] = []
         self._pass_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
+        self._aov = None
+        self._aov_nodes: list[tuple[object, str]] = []
 
     def _structs(self) -> Iterator[tuple[object, tuple[str, ...]]]:
         scene = self.scene
@@ -234,19 +263,47 @@ class PassSetup(contextlib.AbstractContextManager):
         cycles_layer = getattr(layer, "cycles", None)
         if cycles_layer is not None:
             for prop in cycles_layer.bl_rna.properties:
-                if prop.type == "BOOLEAN" and not prop.is_readonly and (
-                    prop.identifier.startswith(("use_pass_", "pass_"))
-                    or prop.identifier in ("use_denoising", "denoising_store_passes")
+                if (
+                    prop.type == "BOOLEAN"
+                    and not prop.is_readonly
+                    and (
+                        prop.identifier.startswith(("use_pass_", "pass_"))
+                        or prop.identifier in ("use_denoising", "denoising_store_passes")
+                    )
                 ):
                     setattr(cycles_layer, prop.identifier, False)
         for material in bpy.data.materials:
-            if material.pass_index != 0:
+            if material.pass_index != 0 and material.is_editable:
                 material.pass_index = 0
         for slot, material in enumerate(self.materials, 1):
             material.pass_index = slot
+        if self.engine != "CYCLES":
+            self._add_material_aov()
+
+    def _add_material_aov(self) -> None:
+        """EEVEE: write each material's slot to the value AOV ``cvsss_material``."""
+        layer = self.view_layer
+        if not any(aov.name == AOV_NAME for aov in layer.aovs):
+            self._aov = layer.aovs.add()
+            self._aov.name = AOV_NAME
+            self._aov.type = "VALUE"
+        for slot, material in enumerate(self.materials, 1):
+            tree = material.node_tree
+            node = tree.nodes.new("ShaderNodeOutputAOV")
+            self._aov_nodes.append((tree, node.name))
+            node.aov_name = AOV_NAME
+            node.inputs["Value"].default_value = float(slot)
 
     def restore(self) -> None:
         """Put back everything saved so far (safe to call more than once)."""
+        for tree, name in reversed(self._aov_nodes):
+            node = tree.nodes.get(name)
+            if node is not None:
+                tree.nodes.remove(node)
+        self._aov_nodes = []
+        if self._aov is not None:
+            self.view_layer.aovs.remove(self._aov)
+            self._aov = None
         if self._sss is not None:
             self._sss.restore()
             self._sss = None
@@ -301,7 +358,10 @@ def render_frame(
     scene.frame_set(frame)
     path = pass_path(passes_dir, frame)
     sidecar = make_sidecar(
-        scene_camera(scene), specs, frame=frame, view_layer=view_layer.name,
+        scene_camera(scene),
+        specs,
+        frame=frame,
+        view_layer=view_layer.name,
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
@@ -312,6 +372,8 @@ def render_frame(
         _render_still(scene)
         if not temp.is_file():
             raise OutputError(temp, "Blender wrote no file (check the output folder)")
+        if scene.render.engine != "CYCLES":
+            aov_to_material_index(temp, view_layer.name, sidecar["camera"]["clip_end"])
         try:
             os.replace(temp, path)
         except OSError as exc:
@@ -320,3 +382,33 @@ def render_frame(
         with contextlib.suppress(FileNotFoundError):
             temp.unlink()
     return path
+
+
+def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
+    """Rewrite an EEVEE pass EXR in place so it reads like a Cycles one.
+
+    The value AOV ``<layer>.cvsss_material`` becomes ``<layer>.Material Index``
+    (rounded to whole slots) and depths at the clip end become 1e10.
+    """
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    skip = ("name", "channels", "chunkCount", "version", "type")
+    parts = []
+    for part in exr.parts:
+        name = part.name()
+        header = {k: v for k, v in part.header.items() if k not in skip}
+        channels = {key: channel.pixels for key, channel in part.channels.items()}
+        if name == f"{layer}.{AOV_NAME}":
+            name = f"{layer}.Material Index"
+            (values,) = channels.values()
+            channels = {f"{name}.X": np.rint(values).astype(np.float32)}
+        elif name == f"{layer}.Depth":
+            channels = {
+                key: np.where(z >= clip_end * (1.0 - 1e-4), BACKGROUND_DEPTH_WRITTEN, z).astype(
+                    np.float32
+                )
+                for key, z in channels.items()
+            }
+        parts.append(OpenEXR.Part(header, channels, name))
+    if not any(p.name() == f"{layer}.Material Index" for p in parts):
+        raise OutputError(path, f"the engine wrote no '{AOV_NAME}' AOV for the material index")
+    OpenEXR.File(parts).write(str(path))

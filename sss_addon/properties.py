@@ -14,6 +14,7 @@ object the operators and the command line pass to the core.
 import math
 
 import bpy
+import numpy as np
 from bpy.props import (
     BoolProperty,
     EnumProperty,
@@ -131,7 +132,12 @@ class SSSSettings(PropertyGroup):
             "Larger reacts faster to change, smaller smooths more"
         ),
         default=PAPER_DEFAULTS["eta"],
-        min=1e-6, max=1.0, soft_min=0.01, soft_max=1.0, step=1, precision=3,
+        min=1e-6,
+        max=1.0,
+        soft_min=0.01,
+        soft_max=1.0,
+        step=1,
+        precision=3,
     )
     target_variance: FloatProperty(
         name="σ0² (Target Variance)",
@@ -140,7 +146,12 @@ class SSSSettings(PropertyGroup):
             "linear; units of luminance²). Smaller means more samples and higher quality"
         ),
         default=PAPER_DEFAULTS["target_variance"],
-        min=1e-12, max=1e6, soft_min=1e-6, soft_max=1e-2, step=0.001, precision=6,
+        min=1e-12,
+        max=1e6,
+        soft_min=1e-6,
+        soft_max=1e-2,
+        step=0.001,
+        precision=6,
     )
     eps_u: FloatProperty(
         name="ε_u (Distant Cutoff)",
@@ -149,7 +160,11 @@ class SSSSettings(PropertyGroup):
             "samples (unitless, in [0, 1])"
         ),
         default=PAPER_DEFAULTS["eps_u"],
-        min=0.0, max=1.0, soft_max=0.2, step=0.1, precision=4,
+        min=0.0,
+        max=1.0,
+        soft_max=0.2,
+        step=0.1,
+        precision=4,
     )
     eps_alpha: FloatProperty(
         name="ε_α (CV Suppression)",
@@ -158,26 +173,37 @@ class SSSSettings(PropertyGroup):
             "damps jitter-driven overestimates and gives α = 1 when both moments vanish"
         ),
         default=PAPER_DEFAULTS["eps_alpha"],
-        min=0.0, max=1e6, soft_max=1e-2, step=0.001, precision=6,
+        min=0.0,
+        max=1e6,
+        soft_max=1e-2,
+        step=0.001,
+        precision=6,
     )
     kappa: FloatProperty(
         name="κ (Correction Weight)",
         description="Weight of the SPVG correction term, in [0, 1] (unitless)",
         default=PAPER_DEFAULTS["kappa"],
-        min=0.0, max=1.0, step=1, precision=3,
+        min=0.0,
+        max=1.0,
+        step=1,
+        precision=3,
     )
     beta_min: IntProperty(
         name="β min",
         description="Smallest adaptive sample count per SSS pixel (samples, 1 to 4096)",
         default=PAPER_DEFAULTS["beta_min"],
-        min=1, max=MAX_SPP, soft_max=256,
+        min=1,
+        max=MAX_SPP,
+        soft_max=256,
         update=_beta_min_changed,
     )
     beta_max: IntProperty(
         name="β max",
         description="Largest adaptive sample count per SSS pixel (samples, 1 to 4096)",
         default=PAPER_DEFAULTS["beta_max"],
-        min=1, max=MAX_SPP, soft_max=1024,
+        min=1,
+        max=MAX_SPP,
+        soft_max=1024,
         update=_beta_max_changed,
     )
     eta_cv: FloatProperty(
@@ -187,7 +213,12 @@ class SSSSettings(PropertyGroup):
             "in (0, 1]. The paper uses 1e-6 (a very long memory)"
         ),
         default=PAPER_DEFAULTS["eta_cv"],
-        min=1e-9, max=1.0, soft_min=1e-6, soft_max=0.5, step=0.001, precision=6,
+        min=1e-9,
+        max=1.0,
+        soft_min=1e-6,
+        soft_max=0.5,
+        step=0.001,
+        precision=6,
     )
 
     # -- other methods -------------------------------------------------------------------
@@ -195,13 +226,17 @@ class SSSSettings(PropertyGroup):
         name="Fixed Samples",
         description="Samples per pixel of the Fixed N method (1 to 4096)",
         default=_DEFAULTS.fixed_spp,
-        min=1, max=MAX_SPP, soft_max=1024,
+        min=1,
+        max=MAX_SPP,
+        soft_max=1024,
     )
     reference_spp: IntProperty(
         name="Reference Samples",
         description="Samples per pixel of the reference used for PSNR (1 to 4096)",
         default=_DEFAULTS.reference_spp,
-        min=1, max=MAX_SPP, soft_min=16,
+        min=1,
+        max=MAX_SPP,
+        soft_min=16,
     )
     use_reference: BoolProperty(
         name="Compute PSNR",
@@ -215,7 +250,8 @@ class SSSSettings(PropertyGroup):
         name="Seed",
         description="Seed of the per-pixel random sequence; the same seed gives identical output",
         default=_DEFAULTS.seed,
-        min=0, max=_INT_MAX,
+        min=0,
+        max=_INT_MAX,
     )
     history_precision: EnumProperty(
         name="History Precision",
@@ -230,7 +266,11 @@ class SSSSettings(PropertyGroup):
         name="Exposure",
         description="Linear scale applied before tracking luminance and computing PSNR (> 0)",
         default=_DEFAULTS.exposure,
-        min=1e-6, max=1e6, soft_min=0.01, soft_max=100.0, precision=3,
+        min=1e-6,
+        max=1e6,
+        soft_min=0.01,
+        soft_max=100.0,
+        precision=3,
     )
 
     # -- run settings ------------------------------------------------------------------------
@@ -267,27 +307,36 @@ class SSSSettings(PropertyGroup):
     frame_start: IntProperty(
         name="Start",
         description="First frame to process (frames >= 0)",
-        default=1, min=0, max=_INT_MAX, update=_start_changed,
+        default=1,
+        min=0,
+        max=_INT_MAX,
+        update=_start_changed,
     )
     frame_end: IntProperty(
         name="End",
         description="Last frame to process (inclusive)",
-        default=250, min=0, max=_INT_MAX, update=_end_changed,
+        default=250,
+        min=0,
+        max=_INT_MAX,
+        update=_end_changed,
     )
 
     # -- statistics of the last processed frame (written by the operators) --------------------
-    has_stats: BoolProperty(name="Has Statistics", default=False, options={"SKIP_SAVE"})
+    has_stats: BoolProperty(name="Has Statistics", default=False)
     last_frame: IntProperty(name="Frame", description="Last processed frame", default=0)
     last_method: StringProperty(name="Method", description="Method of the statistics", default="")
     last_spp: FloatProperty(
         name="Mean spp",
         description="Mean distant samples per SSS pixel of the last processed frame",
-        default=0.0, min=0.0,
+        default=0.0,
+        min=0.0,
     )
     last_pass_ms: FloatProperty(
         name="Pass Time",
         description="Wall time of the Monte Carlo sampling step of the last frame (ms)",
-        default=0.0, min=0.0, unit="NONE",
+        default=0.0,
+        min=0.0,
+        unit="NONE",
     )
     last_psnr: FloatProperty(
         name="PSNR",
@@ -324,18 +373,34 @@ class SSSMaterialSettings(PropertyGroup):
         description="Burley shape d per channel (R, G, B), scene units",
         size=3,
         default=(0.00398, 0.000796, 0.000398),
-        min=0.0, soft_max=1.0, precision=5, step=0.01,
-        subtype="NONE", unit="LENGTH",
+        min=0.0,
+        soft_max=1.0,
+        precision=5,
+        step=0.01,
+        subtype="NONE",
+        unit="LENGTH",
     )
     preset: EnumProperty(
         name="Measured Preset",
         description=(
-            "Measured material (Jensen et al. 2001 dipole, converted to a Burley shape). "
-            "Stored with the passes; applied once the core ships the preset table"
+            "Measured material (Jensen et al. 2001): its Burley shape d = ℓ/s(A) replaces the "
+            "Principled BSDF's, and the choice travels with the passes"
         ),
         items=[("NONE", "None", "Use the Principled BSDF or the override")]
         + [(name.upper(), name, f"Measured material '{name}'") for name in PRESET_NAMES],
         default="NONE",
+    )
+    preset_scale: FloatProperty(
+        name="Preset Scale",
+        description=(
+            "Artist multiplier of the measured scattering distances (1 = real size for a "
+            "scene modelled at real size; unitless)"
+        ),
+        default=1.0,
+        min=1e-6,
+        soft_min=0.01,
+        soft_max=1000.0,
+        precision=3,
     )
 
 
@@ -362,20 +427,26 @@ def settings_to_params(settings: SSSSettings) -> SSSParams:
         Only for combinations the UI limits cannot exclude (none at present).
     """
     return SSSParams(
-        eta=float(settings.eta),
-        target_variance=float(settings.target_variance),
-        eps_u=float(settings.eps_u),
-        eps_alpha=float(settings.eps_alpha),
-        kappa=float(settings.kappa),
+        eta=_decimal(settings.eta),
+        target_variance=_decimal(settings.target_variance),
+        eps_u=_decimal(settings.eps_u),
+        eps_alpha=_decimal(settings.eps_alpha),
+        kappa=_decimal(settings.kappa),
         beta_min=int(settings.beta_min),
         beta_max=int(settings.beta_max),
-        eta_cv=float(settings.eta_cv),
+        eta_cv=_decimal(settings.eta_cv),
         fixed_spp=int(settings.fixed_spp),
         reference_spp=int(settings.reference_spp),
         seed=int(settings.seed),
         history_precision=str(settings.history_precision),
-        exposure=float(settings.exposure),
+        exposure=_decimal(settings.exposure),
     )
+
+
+def _decimal(value: float) -> float:
+    """The shortest decimal that rounds to Blender's float32 value (0.2, not 0.2000000029…),
+    so the UI's defaults give exactly the paper's parameters."""
+    return float(str(np.float32(value)))
 
 
 def frame_range(scene) -> tuple[int, int]:
@@ -386,8 +457,14 @@ def frame_range(scene) -> tuple[int, int]:
     return int(scene.frame_start), int(scene.frame_end)
 
 
-def store_stats(settings: SSSSettings, frame: int, method: str, spp: float, pass_ms: float,
-                psnr_db: float | None) -> None:
+def store_stats(
+    settings: SSSSettings,
+    frame: int,
+    method: str,
+    spp: float,
+    pass_ms: float,
+    psnr_db: float | None,
+) -> None:
     """Record the statistics of the last processed frame on the settings."""
     settings.last_frame = int(frame)
     settings.last_method = method

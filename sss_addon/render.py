@@ -10,6 +10,11 @@ Layout under the output folder::
     <method>/####.exr             result layers (core.exr.write_result)
     metrics.csv                   frame,method,spp,pass_ms,psnr_db
 
+The reference (1024 spp) costs as much as all other methods together: with
+``reference_every = k`` it is computed on every k-th frame of the range only
+(the first, the (k+1)-th, …; it keeps no history, so any subset is exact)
+and PSNR is reported on those frames.
+
 Pass frames that exist are reused unless ``overwrite``. The post-process
 carries a per-pixel history from frame to frame, so it always runs from the
 first frame of the range and rewrites the result files.
@@ -27,7 +32,7 @@ from pathlib import Path
 import bpy
 
 from ..core.exr import read_frame, write_result
-from ..core.methods import METHODS, get_method
+from ..core.methods import METHODS
 from ..core.metrics import psnr
 from ..core.params import SSSParams
 from ..core.pipeline import FrameResult, SequenceProcessor
@@ -44,8 +49,18 @@ from .passes import (
 )
 from .post import format_metrics, write_text_atomic
 
-__all__ = ["Job", "RenderError", "Step", "apply_frame", "iter_passes", "iter_sequence",
-           "job_from_scene", "prepare", "render_sequence", "resolve_output_dir"]
+__all__ = [
+    "Job",
+    "RenderError",
+    "Step",
+    "apply_frame",
+    "iter_passes",
+    "iter_sequence",
+    "job_from_scene",
+    "prepare",
+    "render_sequence",
+    "resolve_output_dir",
+]
 
 Log = Callable[[str], None] | None
 
@@ -67,6 +82,7 @@ class Job:
     images: bool = False
     display: str = ""
     log: Log = None
+    reference_every: int = 1
 
     @property
     def passes_dir(self) -> Path:
@@ -87,6 +103,7 @@ class Step:
     seconds : float, wall time of the step
     results : dict method -> FrameResult (empty for a pass-only run)
     rows : list of metric rows of this frame
+    post_seconds : float, the post-process's share of ``seconds``
     """
 
     index: int
@@ -97,6 +114,7 @@ class Step:
     seconds: float
     results: dict[str, FrameResult] = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
+    post_seconds: float = 0.0
 
 
 # -- inputs --------------------------------------------------------------------------------
@@ -140,8 +158,6 @@ def _check_methods(methods: Sequence[str]) -> list[str]:
     for name in names:
         if name not in METHODS:
             raise RenderError(f"method must be one of {', '.join(METHODS)}, got {name!r}")
-        if get_method(name).counts == "separable":
-            raise RenderError(f"method {name!r} is not available in the sequence renderer yet")
     return names
 
 
@@ -159,8 +175,11 @@ def prepare(
     images: bool = False,
     context=None,
     log: Log = None,
+    reference_every: int = 1,
 ) -> Job:
     """Check everything a run needs before the scene is touched.
+
+    ``reference_every = k`` computes the reference on every k-th frame only.
 
     Raises
     ------
@@ -170,6 +189,12 @@ def prepare(
     """
     frame_list = _check_frames(frames)
     names = _check_methods(methods)
+    if (
+        isinstance(reference_every, bool)
+        or not isinstance(reference_every, int)
+        or reference_every < 1
+    ):
+        raise RenderError(f"reference_every must be an integer >= 1, got {reference_every!r}")
     display = next((n for n in names if n != "reference"), names[0])
     if reference and "reference" not in names:
         names.append("reference")
@@ -185,16 +210,34 @@ def prepare(
             "(give one a Principled BSDF with Subsurface Weight > 0, or set its "
             "Subsurface (cvsss) mode to On)"
         )
+    linked = [m.name for m in mats if m.library is not None and m.override_library is None]
+    if linked:
+        raise RenderError(
+            f"material(s) {', '.join(map(repr, linked))} are linked from a library and cannot "
+            "get a pass index; make them local or library overrides"
+        )
     try:
-        sss_materials.material_specs(mats)
+        sss_materials.material_specs(mats, scene)
     except ValueError as exc:
         raise RenderError(str(exc)) from None
     out = Path(out).expanduser().absolute()
     _check_writable(out / "passes")
-    return Job(scene=scene, view_layer=view_layer, frames=frame_list, out=out,
-               methods=names, params=params or SSSParams(), engine=engine,
-               overwrite=overwrite, normal=normal, materials=mats, images=images,
-               display=display, log=log)
+    return Job(
+        scene=scene,
+        view_layer=view_layer,
+        frames=frame_list,
+        out=out,
+        methods=names,
+        params=params or SSSParams(),
+        engine=engine,
+        overwrite=overwrite,
+        normal=normal,
+        materials=mats,
+        images=images,
+        display=display,
+        log=log,
+        reference_every=reference_every,
+    )
 
 
 # -- steps ------------------------------------------------------------------------------------
@@ -207,6 +250,7 @@ def iter_passes(job: Job) -> Iterator[Step]:
     scene = job.scene
     frame_before, subframe_before = scene.frame_current, scene.frame_subframe
     total = len(job.frames)
+    began = time.perf_counter()
     try:
         for index, frame in enumerate(job.frames, 1):
             start = time.perf_counter()
@@ -214,16 +258,32 @@ def iter_passes(job: Job) -> Iterator[Step]:
             rendered = job.overwrite or not frame_done(job.passes_dir, frame)
             if rendered:
                 scene.frame_set(frame)
-                specs = sss_materials.material_specs(job.materials)
+                specs = sss_materials.material_specs(job.materials, scene)
                 with PassSetup(scene, job.materials, job.view_layer, job.engine, job.normal):
                     render_frame(scene, frame, job.passes_dir, specs, job.view_layer)
             seconds = time.perf_counter() - start
             if job.log:
                 what = "rendered" if rendered else "exists, reused"
-                job.log(f"frame {index}/{total} ({frame}) passes {what} [{seconds:.2f} s]")
+                elapsed = time.perf_counter() - began
+                job.log(
+                    f"frame {index}/{total} ({frame}) passes {what} [{seconds:.2f} s; "
+                    f"passes elapsed {_clock(elapsed)}, eta {_clock(elapsed / index * (total - index))}]"
+                )
             yield Step(index, total, frame, path, rendered, seconds)
     finally:
         scene.frame_set(frame_before, subframe=subframe_before)
+
+
+def _clock(seconds: float) -> str:
+    """``m:ss`` (or ``h:mm:ss``) of a duration in seconds."""
+    minutes, sec = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{sec:02d}" if hours else f"{minutes}:{sec:02d}"
+
+
+def reference_due(job: Job, index: int) -> bool:
+    """Whether the reference is computed on the ``index``-th (1-based) frame of the range."""
+    return (index - 1) % job.reference_every == 0
 
 
 def _fmt(value: float | None, digits: int) -> str:
@@ -232,25 +292,43 @@ def _fmt(value: float | None, digits: int) -> str:
     return f"{value:.{digits}f}"
 
 
-def _post_frame(job: Job, processors: dict[str, SequenceProcessor], step: Step,
-                write: bool) -> None:
+def _post_frame(
+    job: Job, processors: dict[str, SequenceProcessor], step: Step, write: bool
+) -> None:
     """Post-process the pass file of ``step`` with every processor, in order."""
     frame = read_frame(step.path, number=step.frame)
     settings = getattr(job.scene, "sss_settings", None)
     ref = None
+    skip_reference = not reference_due(job, step.index)
     for name, processor in processors.items():
+        if name == "reference" and skip_reference:
+            continue
         result = processor.process(frame)
         if name == "reference":
-            ref, value = result, None
-        else:
-            value = psnr(result.composite, ref.composite, result.mask,
-                         job.params.exposure) if ref is not None else None
+            ref = result
+        # As in `cvsss post`: the reference is listed too (against itself: the 100 dB cap).
+        value = (
+            psnr(result.composite, ref.composite, result.mask, job.params.exposure)
+            if ref is not None
+            else None
+        )
         if write:
-            write_result(job.out / name / step.path.name, result, overwrite=True,
-                         metadata={"source": step.path.name})
+            write_result(
+                job.out / name / step.path.name,
+                result,
+                overwrite=True,
+                metadata={"source": step.path.name},
+            )
         step.results[name] = result
-        step.rows.append({"frame": step.frame, "method": name, "spp": _fmt(result.spp, 4),
-                          "pass_ms": _fmt(result.pass_ms, 3), "psnr_db": _fmt(value, 3)})
+        step.rows.append(
+            {
+                "frame": step.frame,
+                "method": name,
+                "spp": _fmt(result.spp, 4),
+                "pass_ms": _fmt(result.pass_ms, 3),
+                "psnr_db": _fmt(value, 3),
+            }
+        )
         if name == job.display:
             if job.images:
                 from .images import show_result
@@ -261,9 +339,11 @@ def _post_frame(job: Job, processors: dict[str, SequenceProcessor], step: Step,
 
                 store_stats(settings, step.frame, name, result.spp, result.pass_ms, value)
         if job.log:
-            job.log(f"frame {step.index}/{step.total} ({step.frame}) {name:>9}: "
-                    f"spp {result.spp:7.2f}  pass {result.pass_ms:8.2f} ms  "
-                    f"psnr {_fmt(value, 2) or '-':>6} dB")
+            job.log(
+                f"frame {step.index}/{step.total} ({step.frame}) {name:>9}: "
+                f"spp {result.spp:7.2f}  pass {result.pass_ms:8.2f} ms  "
+                f"psnr {_fmt(value, 2) or '-':>6} dB  distant {result.distant_share:6.1%}"
+            )
 
 
 def iter_sequence(job: Job) -> Iterator[Step]:
@@ -274,12 +354,22 @@ def iter_sequence(job: Job) -> Iterator[Step]:
     """
     processors = {name: SequenceProcessor(name, job.params) for name in job.methods}
     rows: list[dict] = []
+    began = time.perf_counter()
     for step in iter_passes(job):
         start = time.perf_counter()
         _post_frame(job, processors, step, write=True)
         rows.extend(step.rows)
         write_text_atomic(job.out / "metrics.csv", format_metrics(rows))
-        step.seconds += time.perf_counter() - start
+        post = time.perf_counter() - start
+        step.seconds += post
+        step.post_seconds = post
+        if job.log:
+            elapsed = time.perf_counter() - began
+            eta = elapsed / step.index * (step.total - step.index)
+            job.log(
+                f"frame {step.index}/{step.total} ({step.frame}) post-process [{post:.2f} s; "
+                f"elapsed {_clock(elapsed)}, eta {_clock(eta)}]"
+            )
         yield step
 
 
@@ -311,6 +401,7 @@ def job_from_scene(
     images: bool = False,
     context=None,
     log: Log = None,
+    reference_every: int = 1,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
@@ -335,6 +426,7 @@ def job_from_scene(
         images=images,
         context=context,
         log=log,
+        reference_every=reference_every,
     )
 
 
@@ -364,6 +456,7 @@ def render_sequence(
     *,
     reference: bool | None = None,
     images: bool = False,
+    reference_every: int = 1,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -390,6 +483,8 @@ def render_sequence(
         Also compute the reference for PSNR; defaults to ``sss_settings.use_reference``.
     images : bool
         Update the image datablocks after each frame.
+    reference_every : int
+        Compute the reference (and PSNR) on every k-th frame of the range only.
 
     Returns
     -------
@@ -411,11 +506,25 @@ def render_sequence(
             path = Path(source).expanduser()
             if not path.is_file():
                 raise RenderError(f"{path}: no such .blend file")
-            bpy.ops.wm.open_mainfile(filepath=str(path.absolute()), load_ui=False)
+            try:
+                bpy.ops.wm.open_mainfile(filepath=str(path.absolute()), load_ui=False)
+            except RuntimeError as exc:
+                # Blender's message ends with the cause ("File format is not supported …").
+                reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
+                raise RenderError(f"{path}: not a readable .blend file ({reason})") from None
             scene = bpy.context.scene
         job = job_from_scene(
-            scene, frames=frames, out=out, methods=methods, params=params, engine=engine,
-            overwrite=overwrite, reference=reference, images=images, log=log,
+            scene,
+            frames=frames,
+            out=out,
+            methods=methods,
+            params=params,
+            engine=engine,
+            overwrite=overwrite,
+            reference=reference,
+            images=images,
+            log=log,
+            reference_every=reference_every,
         )
         rows: list[dict] = []
         for step in iter_sequence(job):

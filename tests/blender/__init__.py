@@ -1,0 +1,1 @@
+"""bpy lane: the add-on in real headless Blender."""

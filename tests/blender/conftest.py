@@ -1,0 +1,156 @@
+"""bpy lane: the add-on in real headless Blender (the ``bpy`` module).
+
+Blender reads ``BLENDER_USER_RESOURCES`` once, when bpy is first imported, so
+this file points it at a throw-away folder at import time: pytest imports
+conftest files before any test module, and bpy is imported in this process
+only by tests/blender (other lanes render in subprocesses, which inherit the
+variable). Nothing touches the user's real Blender configuration.
+"""
+
+import atexit
+import os
+import shutil
+import tempfile
+
+import pytest
+
+_USER = tempfile.mkdtemp(prefix="cvsss-blender-user-")
+os.environ["BLENDER_USER_RESOURCES"] = _USER
+atexit.register(shutil.rmtree, _USER, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def addon():
+    """The cvsss package registered once for the session (as Blender would an add-on)."""
+    import bpy  # noqa: F401
+
+    import cvsss
+
+    cvsss.register()
+    yield cvsss
+    cvsss.unregister()
+
+
+@pytest.fixture
+def fresh(addon):
+    """An empty factory scene rendering with Cycles on the CPU."""
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    return scene
+
+
+@pytest.fixture
+def demo(fresh, tmp_path):
+    """The flash demo at 48x32, 4 samples, frames 1–3, output in tmp_path/out."""
+    import bpy
+
+    bpy.ops.sss.build_demo(scene_name="flash")
+    scene = fresh
+    scene.render.resolution_x, scene.render.resolution_y = 48, 32
+    scene.render.resolution_percentage = 100
+    scene.cycles.samples = 4
+    s = scene.sss_settings
+    s.output_dir = str(tmp_path / "out")
+    s.use_frame_range = True
+    s.frame_start, s.frame_end = 1, 3
+    s.method = "as_ocv"
+    s.target_variance = 1e-6  # forces counts to vary between beta_min and beta_max
+    s.reference_spp = 64
+    return scene
+
+
+# -- scene state snapshots (independent of the add-on's own snapshot code) ------------------
+_SCALARS = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
+
+
+def _plain(value):
+    if isinstance(value, str | int | float | bool) or value is None:
+        return value
+    if isinstance(value, set | frozenset):
+        return tuple(sorted(value))
+    try:
+        return tuple(_plain(v) for v in value)
+    except TypeError:
+        return repr(value)
+
+
+def _props(struct, prefix: str, out: dict, depth: int = 0) -> None:
+    for prop in struct.bl_rna.properties:
+        ident = prop.identifier
+        if ident == "rna_type":
+            continue
+        if prop.type in _SCALARS:
+            try:
+                out[f"{prefix}.{ident}"] = _plain(getattr(struct, ident))
+            except (AttributeError, RuntimeError):
+                pass
+        elif prop.type == "POINTER" and depth < 2 and ident != "depsgraph":
+            if ident == "linear_colorspace_settings" and not struct.has_linear_colorspace:
+                # Unused by non-linear formats; a fresh scene holds an unset value that
+                # RNA cannot write back, and Blender resets it when a linear format is chosen.
+                continue
+            child = getattr(struct, ident, None)
+            if child is not None and not hasattr(child, "users"):  # nested structs, not IDs
+                _props(child, f"{prefix}.{ident}", out, depth + 1)
+
+
+def _tree(tree, prefix: str, out: dict, seen: set) -> None:
+    if tree is None or tree.as_pointer() in seen:
+        return
+    seen.add(tree.as_pointer())
+    for node in tree.nodes:
+        for i, socket in enumerate(node.inputs):
+            if hasattr(socket, "default_value"):
+                out[f"{prefix}.{node.name}.in{i}.{socket.name}"] = _plain(socket.default_value)
+        if node.bl_idname == "ShaderNodeGroup":
+            _tree(node.node_tree, f"{prefix}>{node.name}", out, seen)
+    out[f"{prefix}.links"] = tuple(
+        sorted(
+            (lk.from_node.name, lk.from_socket.identifier, lk.to_node.name, lk.to_socket.identifier)
+            for lk in tree.links
+        )
+    )
+    anim = tree.animation_data
+    if anim is not None:
+        out[f"{prefix}.drivers"] = tuple((d.data_path, d.mute) for d in anim.drivers)
+
+
+def scene_state(scene) -> dict:
+    """Everything the pass render may touch: materials (every node input, links,
+    pass index), view layers (pass flags), render/image/Cycles settings, frame."""
+    import bpy
+
+    out: dict = {}
+    for material in bpy.data.materials:
+        out[f"mat:{material.name}.pass_index"] = material.pass_index
+        _tree(material.node_tree, f"mat:{material.name}", out, set())
+    for layer in scene.view_layers:
+        _props(layer, f"layer:{layer.name}", out)
+        if getattr(layer, "cycles", None) is not None:
+            _props(layer.cycles, f"layer:{layer.name}.cycles", out)
+    _props(scene.render, "render", out)
+    _props(scene.render.image_settings, "render.image_settings", out)
+    _props(scene.cycles, "cycles", out)
+    out["frame_current"] = scene.frame_current
+    out["frame_subframe"] = scene.frame_subframe
+    out["camera"] = scene.camera.name if scene.camera else None
+    return out
+
+
+def state_diff(before: dict, after: dict) -> list[str]:
+    keys = sorted(set(before) | set(after))
+    return [
+        f"{k}: {before.get(k, '<missing>')!r} -> {after.get(k, '<missing>')!r}"
+        for k in keys
+        if before.get(k, "<missing>") != after.get(k, "<missing>")
+    ]
+
+
+@pytest.fixture
+def snapshot():
+    """Function scene -> state dict, and the diff of two states."""
+    return scene_state, state_diff

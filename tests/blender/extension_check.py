@@ -1,0 +1,116 @@
+"""Install the built extension zip into a throw-away repository and report on it.
+
+Run by test_addon_extension.py in its own Python process, because
+BLENDER_USER_RESOURCES must be set before bpy is imported and the installed
+add-on (``bl_ext.cvsss_test.cvsss``) must not meet the ``cvsss`` package the
+other tests register. Prints one line ``REPORT <json>``.
+
+Usage: python extension_check.py <zip> <work folder>
+"""
+
+import json
+import os
+import sys
+
+REPO = "cvsss_test"
+MOD = f"bl_ext.{REPO}.cvsss"
+
+
+def plain(value):
+    if isinstance(value, str | int | float | bool):
+        return value
+    if isinstance(value, set | frozenset):
+        return sorted(value)
+    return [plain(v) for v in value]
+
+
+def group_state(group) -> dict:
+    out = {}
+    for prop in group.bl_rna.properties:
+        if prop.identifier == "rna_type":
+            continue
+        value = getattr(group, prop.identifier)
+        default = (
+            prop.default_array
+            if getattr(prop, "is_array", False)
+            else getattr(prop, "default", None)
+        )
+        out[prop.identifier] = {
+            "value": plain(value),
+            "default": None if default is None else plain(default),
+            "description": prop.description,
+            "min": getattr(prop, "hard_min", None),
+            "max": getattr(prop, "hard_max", None),
+        }
+    return out
+
+
+def main(zip_path: str, work: str) -> None:
+    os.environ["BLENDER_USER_RESOURCES"] = os.path.join(work, "user")  # before bpy
+    import bpy
+
+    # isort: split
+    import addon_utils  # Blender's own module, importable once bpy is loaded
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    prefs = bpy.context.preferences
+    types_before = set(dir(bpy.types))
+    scene_props_before = {p.identifier for p in bpy.types.Scene.bl_rna.properties}
+    material_props_before = {p.identifier for p in bpy.types.Material.bl_rna.properties}
+
+    repo_dir = os.path.join(work, "repo")
+    repo = prefs.extensions.repos.new(
+        name="cvsss test", module=REPO, custom_directory=repo_dir, source="USER"
+    )
+    report = {}
+    report["install"] = sorted(
+        bpy.ops.extensions.package_install_files(
+            filepath=zip_path, repo=REPO, enable_on_install=True
+        )
+    )
+    report["enabled"] = MOD in prefs.addons
+    module = sys.modules[MOD]
+    report["module_file"] = module.__file__
+    report["installed_files"] = sorted(os.listdir(os.path.join(repo_dir, "cvsss")))
+    report["operators"] = sorted(op for op in dir(bpy.ops.sss) if not op.startswith("_"))
+    report["panels"] = sorted(name for name in dir(bpy.types) if name.startswith("SSS_PT_"))
+    scene = bpy.context.scene
+    report["settings"] = group_state(scene.sss_settings)
+    material = bpy.data.materials.new("check")
+    report["material"] = group_state(material.sss_material)
+    properties = sys.modules[MOD + ".sss_addon.properties"]
+    report["params"] = properties.settings_to_params(scene.sss_settings).to_dict()
+    report["core_module"] = sys.modules[MOD + ".core.params"].__file__
+
+    # The installed copy works end to end: a one-frame 24x16 render through the operators.
+    bpy.ops.sss.build_demo(scene_name="flash")
+    scene.render.engine = "CYCLES"
+    scene.render.resolution_x, scene.render.resolution_y = 24, 16
+    scene.cycles.samples = 1
+    s = scene.sss_settings
+    s.output_dir = os.path.join(work, "out")
+    s.use_frame_range = True
+    s.frame_start = s.frame_end = 1
+    s.use_reference = False
+    report["render"] = sorted(bpy.ops.sss.render_sequence())
+    report["outputs"] = sorted(os.listdir(s.output_dir))
+    report["images"] = sorted(img.name for img in bpy.data.images if img.name.startswith("SSS "))
+
+    addon_utils.disable(MOD, default_set=True)
+    report["enabled_after"] = MOD in prefs.addons
+    report["types_left"] = sorted(set(dir(bpy.types)) - types_before)
+    report["scene_props_left"] = sorted(
+        {p.identifier for p in bpy.types.Scene.bl_rna.properties} - scene_props_before
+    )
+    report["material_props_left"] = sorted(
+        {p.identifier for p in bpy.types.Material.bl_rna.properties} - material_props_before
+    )
+    report["operators_left"] = sorted(op for op in dir(bpy.ops.sss) if not op.startswith("_"))
+    bpy.ops.extensions.package_uninstall(repo_directory=repo_dir, pkg_id="cvsss")
+    report["uninstalled"] = not os.path.exists(os.path.join(repo_dir, "cvsss"))
+    prefs.extensions.repos.remove(repo)
+    print("REPORT " + json.dumps(report))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], sys.argv[2])

@@ -1,0 +1,161 @@
+"""``cvsss render``: the headless command, as a bpy-module command and as a Blender script."""
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from cvsss.core.exr import read_result  # noqa: E402
+from cvsss.sss_addon import cli  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def demo_blend(demo, tmp_path):
+    """The flash demo saved with its cvsss settings (method as_ocv, no reference)."""
+    demo.sss_settings.use_reference = False
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+@pytest.fixture
+def plain_blend(addon, tmp_path):
+    """A scene with a camera and only a non-subsurface material (resets the session)."""
+    from cvsss.demo_blend.scenes import diffuse_material
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    mesh = bpy.data.meshes.new("m")
+    mesh.materials.append(diffuse_material("grey", (0.5, 0.5, 0.5)))
+    scene.collection.objects.link(bpy.data.objects.new("o", mesh))
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    path = tmp_path / "plain.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+def _error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("error: ")
+    return err[0]
+
+
+def test_user_errors_print_one_line_and_exit_2(demo_blend, plain_blend, tmp_path, capsys):
+    out = str(tmp_path / "o")
+    assert cli.main(["render", str(tmp_path / "missing.blend"), "--out", out]) == 2
+    assert "missing.blend: no such .blend file" in _error_line(capsys)
+    for bad in ("3-1", "a-b", "1-2-3", "-4"):
+        assert cli.main(["render", str(demo_blend), "--frames", bad, "--out", out]) == 2
+        assert "--frames must be A-B" in _error_line(capsys)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert cli.main(["render", str(demo_blend), "--frames", "1", "--out", str(blocker / "o")]) == 2
+    assert "cannot write to output folder" in _error_line(capsys)
+    assert cli.main(["render", str(plain_blend), "--frames", "1", "--out", out]) == 2
+    assert "no material in scene 'Scene' takes part" in _error_line(capsys)
+    assert cli.main(["render", str(demo_blend), "--out", out, "--eta", "0"]) == 2
+    assert "eta must be in (0, 1]" in _error_line(capsys)
+    assert cli.main(["render", str(demo_blend), "--out", out, "--method", "bogus"]) == 2
+    assert "--method must be" in _error_line(capsys)
+    assert not Path(out).exists()
+
+
+def _run(args, cwd):
+    return subprocess.run(
+        [sys.executable, *args], capture_output=True, text=True, timeout=300, cwd=cwd, check=False
+    )
+
+
+def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_path):
+    before = demo_blend.read_bytes()
+    # `cvsss render` with the bpy module…
+    run = _run(
+        [
+            "-m",
+            "cvsss.sss_addon.cli",
+            "render",
+            str(demo_blend),
+            "--frames",
+            "1-2",
+            "--out",
+            str(tmp_path / "a"),
+            "--quiet",
+        ],
+        tmp_path,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    # …and the script form Blender runs: blender -b scene.blend --python cli.py -- render …
+    run = _run(
+        [
+            str(ROOT / "sss_addon" / "cli.py"),
+            "--",
+            "render",
+            str(demo_blend),
+            "--frames",
+            "1-2",
+            "--out",
+            str(tmp_path / "b"),
+            "--reference",
+            "--reference-spp",
+            "32",
+        ],
+        tmp_path,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "frame 2/2 (2)" in run.stdout
+    assert demo_blend.read_bytes() == before  # never saved
+
+    # The scene's saved settings choose the method (as_ocv); no reference unless asked.
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["as_ocv", "metrics.csv", "passes"]
+    rows_a = list(csv.DictReader(open(tmp_path / "a" / "metrics.csv")))
+    rows_b = list(csv.DictReader(open(tmp_path / "b" / "metrics.csv")))
+    assert [(r["frame"], r["method"]) for r in rows_a] == [("1", "as_ocv"), ("2", "as_ocv")]
+    assert [r["method"] for r in rows_b] == ["reference", "as_ocv"] * 2
+    assert all(r["psnr_db"] == "" for r in rows_a)
+    assert all(float(r["psnr_db"]) > 20 for r in rows_b)
+    for frame in ("0001.exr", "0002.exr"):
+        a = read_result(tmp_path / "a" / "as_ocv" / frame)
+        b = read_result(tmp_path / "b" / "as_ocv" / frame)
+        np.testing.assert_array_equal(a["SampleCount"], b["SampleCount"])
+        np.testing.assert_array_equal(a["Composite"], b["Composite"])
+    assert [r["spp"] for r in rows_a] == [r["spp"] for r in rows_b if r["method"] == "as_ocv"]
+
+
+def test_render_sequence_api_uses_current_scene(demo, tmp_path):
+    from cvsss.sss_addon.render import render_sequence
+
+    rows = render_sequence(
+        None,
+        (2, 2),
+        tmp_path / "api",
+        ["fixed"],
+        {"fixed_spp": 4},
+        "CYCLES",
+        False,
+        None,
+        reference=False,
+    )
+    assert rows == [
+        {
+            "frame": 2,
+            "method": "fixed",
+            "spp": rows[0]["spp"],
+            "pass_ms": rows[0]["pass_ms"],
+            "psnr_db": "",
+        }
+    ]
+    assert float(rows[0]["spp"]) == 4.0
+    assert (tmp_path / "api" / "fixed" / "0002.exr").is_file()
+    assert demo.frame_current == 1

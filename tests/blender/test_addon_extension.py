@@ -1,0 +1,183 @@
+"""The extension as users get it: built by Blender's tool, installed, enabled, disabled."""
+
+import json
+import os
+import re
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("bpy")
+
+from cvsss.core.methods import METHODS  # noqa: E402
+from cvsss.core.params import SSSParams  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _blender_ext() -> Path:
+    """Blender's extension tool inside the bpy package (runs under plain Python)."""
+    import importlib.util
+
+    (base,) = importlib.util.find_spec("bpy").submodule_search_locations
+    (tool,) = Path(base).glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py")
+    return tool
+
+
+def _fetch_wheels(manifest: dict) -> None:
+    """Download the wheels the manifest lists, as `make wheels` does."""
+    for wheel in manifest.get("wheels", []):
+        path = ROOT / wheel
+        if path.is_file():
+            continue
+        name, version, python, _abi, platform = path.stem.split("-")
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--quiet",
+                f"{name}=={version}",
+                "--only-binary=:all:",
+                "--no-deps",
+                "--python-version",
+                python[2] + "." + python[3:],
+                "--platform",
+                platform,
+                "--dest",
+                str(path.parent),
+            ],
+            check=True,
+            timeout=600,
+        )
+        assert path.is_file(), f"pip did not fetch {path.name}"
+
+
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory):
+    """dist zip built with Blender's extension tool (same commands as `make extension`)."""
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    _fetch_wheels(manifest)
+    out = tmp_path_factory.mktemp("dist")
+    tool = _blender_ext()
+    build = subprocess.run(
+        [sys.executable, str(tool), "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    path = out / f"cvsss-{manifest['version']}.zip"
+    check = subprocess.run(
+        [sys.executable, str(tool), "validate", str(path)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert check.returncode == 0, check.stdout + check.stderr
+    return path
+
+
+def test_zip_content(extension_zip):
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    assert manifest["id"] == "cvsss" and manifest["blender_version_min"] == "4.2.0"
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
+    assert manifest["permissions"]["files"]
+    names = zipfile.ZipFile(extension_zip).namelist()
+    assert "__init__.py" in names and "blender_manifest.toml" in names
+    assert "sss_addon/cli.py" in names and "core/pipeline.py" in names
+    assert "demo_blend/scenes.py" in names and "operators/sequence.py" in names
+    assert sorted(n for n in names if n.startswith("wheels/")) == sorted(
+        w.removeprefix("./") for w in manifest["wheels"]
+    )
+    for bad in (
+        r"^tests/",
+        r"^\.",
+        r"/\.",
+        r"__pycache__",
+        r"\.egg-info",
+        r"^Makefile$",
+        r"^pyproject\.toml$",
+        r"^requirements\.txt$",
+        r"^out/",
+        r"^dist/",
+        r"\.blend$",
+    ):
+        assert not [n for n in names if re.search(bad, n)], bad
+
+
+def test_install_enable_check_disable(extension_zip, tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(Path(__file__).with_name("extension_check.py")),
+            str(extension_zip),
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
+    report = json.loads(line.removeprefix("REPORT "))
+
+    assert report["install"] == ["FINISHED"] and report["enabled"]
+    assert report["module_file"].startswith(str(tmp_path / "repo" / "cvsss"))
+    assert report["core_module"].startswith(str(tmp_path / "repo" / "cvsss"))
+    assert "tests" not in report["installed_files"]
+    assert report["operators"] == ["apply_frame", "build_demo", "render_passes", "render_sequence"]
+    assert report["panels"] == ["SSS_PT_material", "SSS_PT_render"]
+
+    settings = report["settings"]
+    defaults = SSSParams()
+    assert report["params"] == defaults.to_dict()
+    for name, value in defaults.to_dict().items():
+        if name in settings:
+            assert settings[name]["value"] == pytest.approx(value), name
+            assert settings[name]["description"], name
+    assert settings["method"]["value"] == "as_ccv" and settings["cv_mode"]["value"] == "constant"
+    assert settings["method"]["value"] in METHODS
+    assert settings["engine"]["value"] == "CYCLES"
+    assert settings["history_precision"]["value"] == "float32"
+    assert settings["output_dir"]["value"] == "//cvsss/"
+    assert not settings["use_frame_range"]["value"] and not settings["overwrite"]["value"]
+    for name, entry in settings.items():
+        if entry["default"] is not None and name not in ("cv_mode",):
+            assert (
+                entry["value"] == pytest.approx(entry["default"])
+                if isinstance(entry["value"], float)
+                else entry["value"] == entry["default"]
+            ), name
+    material = report["material"]
+    assert material["mode"]["value"] == "AUTO" and material["participates"]["value"] is False
+    assert material["preset"]["value"] == "NONE" and material["use_override"]["value"] is False
+
+    assert report["render"] == ["FINISHED"]
+    assert report["outputs"] == ["as_ccv", "metrics.csv", "passes"]
+    assert report["images"] == [
+        "SSS CV Alpha",
+        "SSS Gamma",
+        "SSS Result",
+        "SSS Sample Count",
+        "SSS Variance",
+    ]
+
+    assert not report["enabled_after"]
+    assert report["types_left"] == []
+    assert report["scene_props_left"] == [] and report["material_props_left"] == []
+    assert report["operators_left"] == []
+    assert report["uninstalled"]

@@ -1,0 +1,256 @@
+"""Settings, material panel data, registration and the demo builder in real Blender."""
+
+import math
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from cvsss.core.methods import METHODS  # noqa: E402
+from cvsss.core.params import SSSParams  # noqa: E402
+from cvsss.core.profiles.burley import blender_shape  # noqa: E402
+from cvsss.demo_blend import scenes  # noqa: E402
+from cvsss.sss_addon import materials  # noqa: E402
+from cvsss.sss_addon.properties import PRESET_NAMES, settings_to_params  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+PARAM_PROPS = (
+    "eta",
+    "target_variance",
+    "eps_u",
+    "eps_alpha",
+    "kappa",
+    "beta_min",
+    "beta_max",
+    "eta_cv",
+    "fixed_spp",
+    "reference_spp",
+    "seed",
+    "history_precision",
+    "exposure",
+)
+
+
+def test_defaults_are_the_papers(fresh):
+    s = fresh.sss_settings
+    assert settings_to_params(s) == SSSParams()
+    for name in PARAM_PROPS:
+        default = s.bl_rna.properties[name].default
+        assert (
+            default == pytest.approx(getattr(SSSParams(), name))
+            if isinstance(default, float)
+            else default == getattr(SSSParams(), name)
+        ), name
+    assert [i.identifier for i in s.bl_rna.properties["method"].enum_items] == list(METHODS)
+    assert s.engine == "CYCLES" and s.history_precision == "float32"
+    assert not s.use_frame_range and not s.has_stats
+
+
+def test_hard_limits_make_invalid_params_impossible(fresh):
+    s = fresh.sss_settings
+    for name in PARAM_PROPS:
+        prop = s.bl_rna.properties[name]
+        if prop.type not in ("FLOAT", "INT"):
+            continue
+        assert prop.description, name
+        for bound in (prop.hard_min, prop.hard_max):
+            setattr(s, name, bound)
+            settings_to_params(s)  # never raises
+        setattr(s, name, prop.default)
+    # Crossing beta_min over beta_max drags the other along.
+    s.beta_min = 100
+    assert s.beta_max == 100
+    s.beta_max = 5
+    assert s.beta_min == 5
+    s.eta = 0.0  # clamped to the open bound
+    assert s.eta > 0
+    settings_to_params(s)
+
+
+def test_cv_mode_follows_the_method_table(fresh):
+    s = fresh.sss_settings
+    for method in METHODS.values():
+        s.method = method.name
+        assert s.cv_mode == (method.cv if method.adaptive else "none")
+    s.cv_mode = "online"
+    assert s.method == "as_ocv"
+    s.cv_mode = "constant"
+    assert s.method == "as_ccv"
+    s.cv_mode = "none"
+    assert s.method == "as"
+
+
+def test_material_participation_shape_override_preset(fresh):
+    mat = bpy.data.materials.new("m")
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    m = mat.sss_material
+    assert m.mode == "AUTO" and not m.participates and not materials.participates(mat)
+    bsdf.inputs["Subsurface Weight"].default_value = 0.5
+    bsdf.inputs["Subsurface Radius"].default_value = (2.0, 1.0, 0.5)
+    bsdf.inputs["Subsurface Scale"].default_value = 0.1
+    assert m.participates
+    np.testing.assert_allclose(materials.material_shape(mat), blender_shape((2.0, 1.0, 0.5), 0.1))
+    np.testing.assert_allclose(materials.material_shape(mat)[0], 2.0 * 0.1 * 0.25 / math.pi)
+    m.mode = "OFF"
+    assert not m.participates
+    m.mode = "ON"
+    bsdf.inputs["Subsurface Weight"].default_value = 0.0
+    assert m.participates
+    m.use_override = True
+    m.d_override = (0.1, 0.2, 0.3)
+    np.testing.assert_allclose(materials.material_shape(mat), (0.1, 0.2, 0.3))
+    items = [i.identifier for i in m.bl_rna.properties["preset"].enum_items]
+    assert items == ["NONE", *[p.upper() for p in PRESET_NAMES]]
+    m.preset = "SKIN1"
+    m.preset_scale = 10.0
+    (spec,) = materials.material_specs([mat], fresh)
+    assert spec.options == {"preset": "skin1", "preset_scale": 10.0, "mm_per_unit": 1000.0}
+    assert spec.slot == 1 and spec.d == pytest.approx((0.1, 0.2, 0.3))  # override wins
+    m.use_override = False
+    presets = materials._presets()
+    if presets is None:  # the core has no preset table yet: the Principled shape stays
+        assert materials.material_shape(mat, fresh) == materials.principled_shape(mat)
+    else:
+        expected = presets.get("skin1").burley_d_mm() * 10.0 / 1000.0
+        np.testing.assert_allclose(materials.material_shape(mat, fresh), expected)
+        fresh.unit_settings.scale_length = 0.01  # centimetres: 10 mm per unit
+        np.testing.assert_allclose(materials.material_shape(mat, fresh), expected * 100.0)
+
+
+def test_material_inside_node_group(fresh):
+    mat = bpy.data.materials.new("grouped")
+    group = bpy.data.node_groups.new("G", "ShaderNodeTree")
+    inner = group.nodes.new("ShaderNodeBsdfPrincipled")
+    inner.inputs["Subsurface Weight"].default_value = 1.0
+    tree = mat.node_tree
+    tree.nodes.remove(tree.nodes["Principled BSDF"])
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    assert materials.participates(mat)
+    with materials.SSSDisabled([mat]):
+        assert inner.inputs["Subsurface Weight"].default_value == 0.0
+    assert inner.inputs["Subsurface Weight"].default_value == 1.0
+
+
+def _addon_classes():
+    from cvsss.operators import demo, sequence
+    from cvsss.sss_addon import panels, properties
+
+    return [c for m in (properties, sequence, demo, panels) for c in m.classes]
+
+
+def test_unregister_leaves_nothing(addon):
+    classes = _addon_classes()
+    assert len(classes) == 8 and all(c.is_registered for c in classes)
+    addon.unregister()
+    try:
+        assert not [c for c in classes if c.is_registered]
+        assert not [name for name in dir(bpy.types) if name.startswith("SSS_")]
+        assert not hasattr(bpy.types.Scene, "sss_settings")
+        assert not hasattr(bpy.types.Material, "sss_material")
+        assert not [op for op in dir(bpy.ops.sss) if not op.startswith("_")]
+    finally:
+        addon.register()
+    assert all(c.is_registered for c in classes)
+    assert bpy.ops.sss.render_sequence.idname() == "SSS_OT_render_sequence"
+
+
+def test_build_demo_is_deterministic(fresh):
+    scene = fresh
+    assert bpy.ops.sss.build_demo(scene_name="flash") == {"FINISHED"}
+
+    def geometry():
+        out = {}
+        for obj in bpy.data.collections["cvsss demo flash"].objects:
+            if obj.type == "MESH":
+                co = np.empty(len(obj.data.vertices) * 3)
+                obj.data.vertices.foreach_get("co", co)
+                out[obj.name] = (co.tobytes(), tuple(obj.matrix_world.col[3]))
+            else:
+                out[obj.name] = tuple(tuple(r) for r in obj.matrix_world)
+        return out
+
+    first = geometry()
+    assert bpy.ops.sss.build_demo(scene_name="flash") == {"FINISHED"}
+    assert geometry() == first
+    assert len([o for o in bpy.data.objects if o.name.startswith("flash")]) == len(first)
+    assert scene.render.fps == 60 and scene.camera.name == "flash Camera"
+    light = bpy.data.lights["flash Sun"]
+    for frame in (1, 2, 4, 7, 13):
+        scene.frame_set(frame)
+        t = (frame - 1) / 60
+        peak = scenes.FLASH_PEAK
+        assert light.energy == pytest.approx(peak / 2 * (math.sin(2 * math.pi * 5 * t) + 1), abs=1e-5)
+    assert {m.name for m in materials.participating(scene)} == {
+        "cvsss Skin", "cvsss Marble", "cvsss Apple"
+    }
+    assert scenes.names()[0] == "flash"
+    with pytest.raises(ValueError, match="demo must be one of"):
+        scenes.build("nope", scene)
+
+
+class _Layout:
+    """Records what a panel draws and checks every property and operator exists."""
+
+    def __init__(self, log):
+        self.log = log
+        self.use_property_split = self.use_property_decorate = False
+        self.active = self.enabled = True
+
+    def _child(self, *args, **kwargs):
+        return _Layout(self.log)
+
+    row = column = box = _child
+
+    def prop(self, data, name, **kwargs):
+        assert name in data.bl_rna.properties, name
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **kwargs):
+        module, name = idname.split(".")
+        assert name in dir(getattr(bpy.ops, module)), idname
+        self.log.append(("operator", idname))
+
+    def operator_menu_enum(self, idname, prop, **kwargs):
+        self.operator(idname)
+
+    def label(self, text="", **kwargs):
+        self.log.append(("label", text))
+
+
+def test_panels_draw(fresh):
+    from types import SimpleNamespace
+
+    from cvsss.sss_addon import panels
+
+    log = []
+    context = SimpleNamespace(scene=fresh)
+    panels.SSS_PT_render.draw(SimpleNamespace(layout=_Layout(log)), context)
+    drawn = {name for kind, name in log if kind == "prop"}
+    assert set(PARAM_PROPS) | {"method", "cv_mode", "engine", "output_dir"} <= drawn
+    assert {name for kind, name in log if kind == "operator"} == {
+        "sss.render_passes",
+        "sss.apply_frame",
+        "sss.render_sequence",
+        "sss.build_demo",
+    }
+    assert ("label", "No frame processed yet") in log
+    s = fresh.sss_settings
+    s.has_stats, s.last_spp, s.last_pass_ms, s.last_psnr = True, 12.5, 3.25, 48.0
+    log.clear()
+    panels.SSS_PT_render.draw(SimpleNamespace(layout=_Layout(log)), context)
+    assert ("label", "Mean spp: 12.50") in log and ("label", "PSNR: 48.00 dB") in log
+
+    material = bpy.data.materials.new("m")
+    material.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value = 1
+    log.clear()
+    panels.SSS_PT_material.draw(
+        SimpleNamespace(layout=_Layout(log)), SimpleNamespace(material=material)
+    )
+    assert {"mode", "participates", "use_override", "d_override", "preset"} <= {
+        name for kind, name in log if kind == "prop"
+    }
+    d = blender_shape((1.0, 0.2, 0.1), 0.05)
+    assert ("label", "R {:.5g}  G {:.5g}  B {:.5g}".format(*d)) in log
