@@ -3,9 +3,11 @@
 Subcommands
 -----------
 post    post-process a directory of pass EXRs (no Blender needed)
+render  render a .blend's passes with Blender (bpy) and post-process them
 demo    the main job end to end (passes, every method, summary + report)
 cv1d    the coefficient study of SPEC §9 (writes out/cv1d.json + plot)
 fig2    the 1D motivating example (writes out/fig2.json + plot)
+bench   speed and the speed/accuracy trade, measured (writes out/bench/bench.json + plots)
 
 Run inside Blender too: ``blender -b scene.blend --python sss_addon/cli.py --
 <subcommand> …``; arguments after ``--`` are read.
@@ -87,6 +89,75 @@ def parse_methods(text: str) -> list[str]:
     return names
 
 
+def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
+    """Profile (P Table 2), measured-material and separable-SSS flags."""
+    from ..core.profiles.factory import PROFILE_NAMES
+    from ..core.profiles.presets import names
+    from ..core.separable import KERNELS, TAP_COUNTS
+
+    group = parser.add_argument_group("profiles and separable SSS")
+    group.add_argument("--profile", choices=PROFILE_NAMES, default=None,
+                       help="diffusion profile of every SSS material (default: each material's "
+                            "own, Burley from the Principled BSDF)")
+    group.add_argument("--material", default=None, metavar="PRESET|SLOT=PRESET,...",
+                       help="measured material for every SSS slot, or per slot (1=skin1,2=marble): "
+                            f"{', '.join(names())}")
+    group.add_argument("--mm-per-unit", type=float, default=1000.0,
+                       help="millimetres per scene unit for --material (default 1000: metres)")
+    group.add_argument("--preset-scale", type=float, default=1.0,
+                       help="artist scale of --material scattering distances (default 1: real size)")
+    group.add_argument("--kernel", choices=KERNELS, default="pre_integrated",
+                       help="separable-SSS kernel (method separable; default pre_integrated)")
+    group.add_argument("--taps", type=int, choices=TAP_COUNTS, default=17,
+                       help="taps per 1D pass of method separable (default 17)")
+    group.add_argument("--jitter", action="store_true",
+                       help="jitter the taps within 33%% of the separable kernel's range per pixel "
+                            "(against banding)")
+    group.add_argument("--gaussians", type=int, default=4,
+                       help="N of --kernel gaussians, 1..6 (2N passes; default 4)")
+    group.add_argument("--follow", choices=("slope", "exponential"), default="slope",
+                       help="separable follow-surface rule: the Monte Carlo estimator's "
+                            "(--depth-slope, default) or the supplementary's exponential")
+    group.add_argument("--filter", choices=("nearest", "linear"), default="nearest",
+                       help="separable tap reads: nearest pixel (default) or linear")
+
+
+def processor_options(args: argparse.Namespace, methods: list[str]) -> dict:
+    """SequenceProcessor keywords from the profile / separable flags (empty: defaults)."""
+    from ..core.profiles.factory import ProfileChoice, make_profile_factory
+    from ..core.separable import SeparableParams
+
+    options = {}
+    try:
+        material, pairs = (None, ()) if args.material is None else \
+            ProfileChoice.parse_material(args.material)
+        choice = ProfileChoice(profile=args.profile, material=material, slot_materials=pairs,
+                               mm_per_unit=args.mm_per_unit, scale=args.preset_scale)
+    except ValueError as exc:
+        raise UserError(f"--material/--profile: {exc}") from None
+    if not choice.is_default:
+        options["profile_factory"] = make_profile_factory(choice)
+        _check_first_frame(args.passes, choice)
+    if "separable" in methods:
+        options["separable"] = SeparableParams(kernel=args.kernel, taps=args.taps,
+                                               jitter=args.jitter, gaussians=args.gaussians,
+                                               follow=args.follow, filter=args.filter)
+    return options
+
+
+def _check_first_frame(passes: Path, choice) -> None:
+    """Refuse a profile choice the first frame's materials cannot take, before any output."""
+    from ..core.exr import PassError, list_frames, read_sidecar
+    from ..core.profiles.factory import check_materials
+
+    try:
+        first = list_frames(passes)[0][1]
+        materials = read_sidecar(first.with_suffix(".json"), exr_path=first).materials
+    except (PassError, IndexError):
+        return  # post_process reports unusable passes itself
+    check_materials(materials, choice)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cvsss",
@@ -103,17 +174,75 @@ def build_parser() -> argparse.ArgumentParser:
     )
     post.add_argument("--reference", action="store_true",
                       help="also compute the reference and report PSNR against it")
-    post.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    existing = post.add_mutually_exclusive_group()
+    existing.add_argument("--overwrite", action="store_true",
+                          help="replace existing results, checkpoints and metrics")
+    existing.add_argument("--resume", action="store_true",
+                          help="continue an interrupted run after each method's checkpoint "
+                               "(<out>/<method>/.history.npz); results are bit-identical")
+    post.add_argument("--allow-gaps", action="store_true",
+                      help="accept missing frame numbers (history runs across the gap)")
+    post.add_argument("--reference-every", type=int, default=1, metavar="K",
+                      help="with --reference: compute it (and PSNR) on every K-th frame only "
+                           "(default 1: every frame)")
     post.add_argument("--quiet", action="store_true", help="no per-frame progress")
+    post.add_argument(
+        "--quality", default=None,
+        help="target PSNR like 45dB or mean sample budget like 24spp; picks σ0² (and β_min, or "
+             "N for fixed) from the bench's calibration (core/data/quality_calibration.json)",
+    )
     add_param_arguments(post)
+    add_profile_arguments(post)
 
     demo = sub.add_parser("demo", help="the main job: passes, every method, report")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory")
-    demo.add_argument("--scenes", default="flash,regular", help="comma-separated scene names")
-    demo.add_argument("--res", default="160x90", help="resolution WxH in pixels")
-    demo.add_argument("--frames", type=int, default=60, help="frames per scene (60 fps)")
-    demo.add_argument("--overwrite", action="store_true", help="regenerate existing passes")
+    demo.add_argument("--source", choices=("blender", "synthetic"), default="blender",
+                      help="passes rendered from the demo_blend scenes with Blender (default) "
+                           "or generated analytically (no Blender)")
+    demo.add_argument("--scenes", default=None,
+                      help="comma-separated scene names (default: all of the source: "
+                           "flash,regular,boids for blender; flash,regular for synthetic)")
+    demo.add_argument("--res", default="320x180", help="resolution WxH in pixels (default 320x180)")
+    demo.add_argument("--frames", type=int, default=120,
+                      help="frames per scene at 60 fps (default 120)")
+    demo.add_argument("--reference-every", type=int, default=4, metavar="K",
+                      help="reference (1024 spp) and PSNR on every K-th frame (default 4)")
+    demo.add_argument("--engine", choices=("CYCLES", "EEVEE"), default="CYCLES",
+                      help="render engine of the blender passes (default CYCLES)")
+    demo.add_argument("--samples", type=int, default=16,
+                      help="render samples per pixel of the blender passes (default 16)")
+    demo.add_argument("--overwrite", action="store_true", help="make the passes again")
     add_param_arguments(demo)
+
+    rnd = sub.add_parser(
+        "render", help="render a .blend's passes with Blender and post-process them (needs bpy)"
+    )
+    rnd.add_argument("blend", nargs="?", type=Path, default=None,
+                     help=".blend file to open, never saved (default: the file Blender has open)")
+    rnd.add_argument("--frames", default=None,
+                     help="frame range A-B or one frame A (default: the scene's range)")
+    rnd.add_argument("--out", type=Path, required=True, help="output directory")
+    rnd.add_argument("--method", default=None,
+                     help=f"method or comma-separated methods: {', '.join(METHODS)} "
+                          "(default: the scene's cvsss setting)")
+    rnd.add_argument("--engine", choices=("CYCLES", "EEVEE"), default=None,
+                     help="render engine of the passes (default: the scene's cvsss setting)")
+    rnd.add_argument("--reference", action=argparse.BooleanOptionalAction, default=None,
+                     help="compute the reference for PSNR (default: the scene's cvsss setting)")
+    rnd.add_argument("--overwrite", action="store_true",
+                     help="render pass frames again even if their files exist")
+    rnd.add_argument("--reference-every", type=int, default=1, metavar="K",
+                     help="with the reference: compute it (and PSNR) on every K-th frame only "
+                          "(default 1: every frame)")
+    rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
+    add_param_arguments(rnd)
+
+    from ..core.bench import build_parser as bench_parser
+
+    bench_parser(sub.add_parser(
+        "bench", help="speed and the speed/accuracy trade, measured (no Blender)",
+        description="Writes bench.json, quality_calibration.json and plots to --out.",
+    ))
 
     for name, text in (("cv1d", "the CV coefficient study (SPEC §9)"),
                        ("fig2", "the 1D motivating example (P Fig. 2)")):
@@ -132,6 +261,79 @@ def _run_study(module: str, args: argparse.Namespace) -> int:
     return mod.main(argv) or 0
 
 
+def parse_frames(text: str) -> tuple[int, int]:
+    """``"A-B"`` or ``"A"`` -> inclusive (A, B) with 0 <= A <= B."""
+    parts = text.strip().split("-")
+    try:
+        start, end = (int(parts[0]), int(parts[-1])) if len(parts) <= 2 else (None, None)
+    except ValueError:
+        start = end = None
+    if start is None or start < 0 or end < start:
+        raise UserError(f"--frames must be A-B with 0 <= A <= B, or one frame A; got {text!r}")
+    return start, end
+
+
+def _render(args: argparse.Namespace) -> int:
+    """``render``: parse, then call sss_addon.render.render_sequence."""
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    methods = parse_methods(args.method) if args.method is not None else None
+    overrides = {dest: getattr(args, dest) for _, (dest, _, _) in PARAM_FLAGS.items()
+                 if getattr(args, dest) is not None}
+    SSSParams(**overrides)  # refuse bad values before Blender starts
+    if args.reference_every < 1:
+        raise UserError(f"--reference-every must be >= 1, got {args.reference_every}")
+    if args.blend is not None and not args.blend.is_file():
+        raise UserError(f"{args.blend}: no such .blend file")
+    try:
+        import bpy
+    except ImportError:
+        raise UserError(
+            "the render command needs Blender: run it inside Blender "
+            "(blender -b scene.blend --python cli.py -- render …) or install bpy==5.0.1"
+        ) from None
+    if args.blend is None and not bpy.data.filepath:
+        raise UserError("no .blend file given and Blender has none open")
+    from .render import RenderError, render_sequence
+
+    try:
+        render_sequence(
+            args.blend, frames, args.out, methods, overrides, args.engine,
+            args.overwrite, None if args.quiet else print, reference=args.reference,
+            reference_every=args.reference_every,
+        )
+    except RenderError as exc:
+        raise UserError(str(exc)) from None
+    return 0
+
+
+def post_params(args: argparse.Namespace, methods: list[str]) -> SSSParams:
+    """SSSParams of ``post``; with ``--quality``, σ0² (or N) from the shipped calibration."""
+    params = params_from_args(args)
+    if args.quality is None:
+        return params
+    from ..core import quality
+
+    tuned = [m for m in methods if m not in ("none", "reference")]
+    if len(tuned) != 1:
+        raise UserError(
+            "--quality picks the parameters of one method: give one method in --method "
+            f"(plus 'reference' for PSNR), got {','.join(methods)!r}"
+        )
+    owned = ("target_variance", "beta_min", "fixed_spp")
+    clash = [f"--{flag}" for flag, (dest, _, _) in PARAM_FLAGS.items()
+             if dest in owned and getattr(args, dest) is not None]
+    if clash:
+        raise UserError(f"--quality sets {', '.join(clash)} itself; drop one or the other")
+    try:
+        calibration = quality.load_calibration()
+        params, choice = quality.apply(params, args.quality, tuned[0], calibration)
+    except (ValueError, FileNotFoundError) as exc:
+        raise UserError(f"--quality: {exc}") from None
+    if not args.quiet:
+        print(f"{choice.describe()} [calibrated on {calibration.describe()}]")
+    return params
+
+
 def run(argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run; raises on errors (see :func:`main`)."""
     args = build_parser().parse_args(argv)
@@ -139,19 +341,30 @@ def run(argv: list[str] | None = None) -> int:
         from .post import post_process
 
         methods = parse_methods(args.method)
+        if args.reference_every < 1:
+            raise UserError(f"--reference-every must be >= 1, got {args.reference_every}")
         post_process(
-            args.passes, args.out, methods, params_from_args(args),
-            reference=args.reference, overwrite=args.overwrite,
-            log=None if args.quiet else print,
+            args.passes, args.out, methods, post_params(args, methods),
+            reference=args.reference, overwrite=args.overwrite, resume=args.resume,
+            allow_gaps=args.allow_gaps, log=None if args.quiet else print,
+            processor_options=processor_options(args, methods),
+            reference_every=args.reference_every,
         )
         return 0
     if args.command == "demo":
-        from .demo import SYNTHETIC_SCENES, run_demo
+        from .demo import SOURCES, DemoError, run_demo
 
-        scenes = [x.strip() for x in args.scenes.split(",") if x.strip()]
-        bad = [x for x in scenes if x not in SYNTHETIC_SCENES]
+        offered = SOURCES[args.source]
+        scenes = offered if args.scenes is None else \
+            [x.strip() for x in args.scenes.split(",") if x.strip()]
+        bad = [x for x in scenes if x not in offered]
         if not scenes or bad:
-            raise UserError(f"--scenes must be a list of {', '.join(SYNTHETIC_SCENES)}; got {args.scenes!r}")
+            raise UserError(f"--scenes must be a list of {', '.join(offered)} (--source "
+                            f"{args.source}); got {args.scenes!r}")
+        for flag, value in (("--reference-every", args.reference_every),
+                            ("--samples", args.samples)):
+            if value < 1:
+                raise UserError(f"{flag} must be >= 1, got {value}")
         try:
             width, height = (int(v) for v in args.res.lower().split("x"))
             if width < 1 or height < 1:
@@ -160,8 +373,25 @@ def run(argv: list[str] | None = None) -> int:
             raise UserError(f"--res must be WIDTHxHEIGHT in pixels, got {args.res!r}") from None
         if args.frames < 1:
             raise UserError(f"--frames must be >= 1, got {args.frames}")
-        run_demo(args.out, scenes=scenes, width=width, height=height, frames=args.frames,
-                 params=params_from_args(args), overwrite=args.overwrite)
+        try:
+            run_demo(args.out, scenes=scenes, width=width, height=height, frames=args.frames,
+                     params=params_from_args(args), overwrite=args.overwrite,
+                     source=args.source, engine=args.engine, samples=args.samples,
+                     reference_every=args.reference_every)
+        except DemoError as exc:
+            raise UserError(str(exc)) from None
+        return 0
+    if args.command == "render":
+        return _render(args)
+    if args.command == "bench":
+        from ..core import bench
+
+        try:
+            config = bench.config_from_args(args)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        bench.run_bench(args.out, config, passes=args.passes,
+                        write_calibration=args.write_calibration, plots=not args.no_plots)
         return 0
     if args.command in ("cv1d", "fig2"):
         return _run_study(args.command, args)
@@ -172,6 +402,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: turns user errors into one line on stderr and exit status 2."""
     from ..core.exr import OutputError, PassError
     from ..core.params import ParameterError
+    from .post import CheckpointError
 
     if argv is None:
         argv = sys.argv[1:]
@@ -179,11 +410,18 @@ def main(argv: list[str] | None = None) -> int:
             argv = argv[argv.index("--") + 1:]
     try:
         return run(argv)
-    except (UserError, ParameterError, PassError, OutputError, FileExistsError) as exc:
+    except ParameterError as exc:
+        # The message starts with the parameter's field name: name the flag too.
+        field = str(exc).split(" ", 1)[0]
+        flags = [f"--{flag}" for flag, (dest, _, _) in PARAM_FLAGS.items() if dest == field]
+        print(f"error: {flags[0] + ': ' if flags else ''}{exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except (UserError, PassError, OutputError, FileExistsError, CheckpointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("error: interrupted; finished frames were kept", file=sys.stderr)
+        print("error: interrupted; finished frames were kept (post: rerun with --resume "
+              "to continue)", file=sys.stderr)
         return 130
 
 

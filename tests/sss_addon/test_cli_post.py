@@ -85,3 +85,32 @@ def test_missing_directory_and_corrupt_file(tmp_path, capsys):
     assert cli.main(["post", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "0001.exr" in err and "Traceback" not in err
+
+
+def test_reference_every_k_frames_leaves_other_methods_unchanged(passes, tmp_path):
+    common = ["--method", "as_ccv", "--reference", "--reference-spp", "64", "--quiet"]
+    assert cli.main(["post", str(passes), "--out", str(tmp_path / "all"), *common]) == 0
+    assert cli.main(["post", str(passes), "--out", str(tmp_path / "k3"), *common,
+                     "--reference-every", "3"]) == 0
+    every = list(csv.DictReader(open(tmp_path / "all" / "metrics.csv")))
+    some = list(csv.DictReader(open(tmp_path / "k3" / "metrics.csv")))
+    # The reference on frames 1 and 4 only (the 1st and the (k+1)-th); PSNR only there.
+    assert [int(r["frame"]) for r in some if r["method"] == "reference"] == [1, 4]
+    assert sorted(p.name for p in (tmp_path / "k3" / "reference").glob("*.exr")) == [
+        "0001.exr", "0004.exr"]
+    ccv_all = {int(r["frame"]): r for r in every if r["method"] == "as_ccv"}
+    ccv_some = {int(r["frame"]): r for r in some if r["method"] == "as_ccv"}
+    assert sorted(ccv_some) == [1, 2, 3, 4]
+    for n, r in ccv_some.items():
+        assert r["spp"] == ccv_all[n]["spp"]  # the reference never feeds the history
+        assert (r["psnr_db"] == ccv_all[n]["psnr_db"]) if n in (1, 4) else r["psnr_db"] == ""
+    np.testing.assert_array_equal(read_result(tmp_path / "k3" / "as_ccv" / "0003.exr")["SSS"],
+                                  read_result(tmp_path / "all" / "as_ccv" / "0003.exr")["SSS"])
+
+
+def test_reference_every_below_one_is_refused(passes, tmp_path, capsys):
+    code = cli.main(["post", str(passes), "--out", str(tmp_path / "o"), "--reference",
+                     "--reference-every", "0"])
+    assert code == 2
+    assert "--reference-every must be >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
