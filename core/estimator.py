@@ -290,8 +290,10 @@ def estimate_distant(
         qy *= r
         qy *= np.repeat(inv_fh[a:b], c)
         qy += np.repeat(y_a[a:b], c)
-        qx = np.rint(qx, out=qx)
-        qy = np.rint(qy, out=qy)
+        # Clip first: with a huge d (or a tiny footprint) the offset would not
+        # fit the integer cast; -1 and w/h stay outside, as before the clip.
+        qx = np.rint(np.clip(qx, -1, w, out=qx), out=qx)
+        qy = np.rint(np.clip(qy, -1, h, out=qy), out=qy)
         centre_idx = np.repeat(idx_a[a:b], c)
         inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
         q = np.where(inside, qy.astype(np.intp) * w + qx.astype(np.intp), centre_idx)

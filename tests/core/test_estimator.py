@@ -1,5 +1,7 @@
 """Unified direct/distant estimator: invariants, unbiasedness, fallbacks, bad input."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -143,3 +145,16 @@ def test_bad_values_never_leak(bad):
                 assert np.all(np.isfinite(arr))
             c = res.counts[res.mask]
             assert np.all((c == 0) | ((c >= p.beta_min) & (c <= max(p.beta_max, p.fixed_spp))))
+
+
+
+@pytest.mark.parametrize("d", [1e20, 1e30])
+def test_offsets_far_beyond_the_image_fall_back_without_warnings(d):
+    """d so large that offsets in pixels overflow an integer: clipped, never cast raw."""
+    frame = flat_plane(d=(d, d, d), lighting=_shadow_edge())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # e.g. "invalid value encountered in cast"
+        _, est, shaded = run(frame, 8)
+    assert est.fallback == est.samples > 0  # every sample lands off screen
+    assert np.isfinite(shaded).all()
+    assert np.allclose(shaded, frame.lighting.reshape(-1, 3), atol=1e-6)
