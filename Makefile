@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: venv test test-core test-bpy demo cv1d fig2 lint format clean
+.PHONY: venv test test-core test-bpy demo cv1d fig2 bench lint format clean
 
 venv: $(STAMP)
 
@@ -28,18 +28,30 @@ test-core: $(STAMP)
 test-bpy: $(STAMP)
 	$(BIN)/python -m pytest -q -m bpy
 
-RES    ?= 160x90
-FRAMES ?= 60
-SCENES ?= flash,regular
+# The main job (~20 min on 2 cores): builds the demo_blend scenes, renders their passes with
+# Cycles, post-processes every method and writes $(OUT)/demo/report.md. Scale with
+# RES=640x360 FRAMES=240 SCENES=flash,boids REF_EVERY=1 (SCENES empty: all three);
+# SOURCE=synthetic generates flash and regular passes analytically, without Blender.
+RES       ?= 320x180
+FRAMES    ?= 120
+SCENES    ?=
+REF_EVERY ?= 5
+SOURCE    ?= blender
 
 demo: $(STAMP)
-	$(BIN)/cvsss demo --out $(OUT)/demo --res $(RES) --frames $(FRAMES) --scenes $(SCENES)
+	$(BIN)/cvsss demo --out $(OUT)/demo --source $(SOURCE) --res $(RES) --frames $(FRAMES) \
+		$(if $(SCENES),--scenes $(SCENES)) --reference-every $(REF_EVERY)
 
 cv1d: $(STAMP)
 	$(BIN)/cvsss cv1d --out $(OUT)
 
 fig2: $(STAMP)
 	$(BIN)/cvsss fig2 --out $(OUT)
+
+# Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, ~5 min on
+# 2 cores. `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
+bench: $(STAMP)
+	$(BIN)/cvsss bench --out $(OUT)/bench
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -70,6 +82,7 @@ wheels/openexr-$(OPENEXR_VERSION)-cp311-cp311-%.whl: | $(STAMP)
 		--python-version 3.11 --platform $* --dest wheels
 	@test -f $@ || (echo "error: pip did not fetch $@ (see wheels/)" >&2; exit 1)
 
-extension: wheels
+extension: wheels | $(STAMP)
+	@mkdir -p dist
 	$(BIN)/python $(BLENDER_EXT) build --source-dir . --output-dir dist
 	$(BIN)/python $(BLENDER_EXT) validate dist/cvsss-$(EXT_VERSION).zip

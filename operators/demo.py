@@ -16,7 +16,7 @@ def _items(_self, _context):
 
 
 class SSS_OT_build_demo(Operator):
-    """Build a deterministic demo scene (objects, SSS material, animated light, camera)"""
+    """Build a deterministic demo scene into this file; sets the render settings (Cycles, 320×180, frames, samples) and bakes its particles"""
 
     bl_idname = "sss.build_demo"
     bl_label = "Build Demo Scene"

@@ -205,8 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--res", default="320x180", help="resolution WxH in pixels (default 320x180)")
     demo.add_argument("--frames", type=int, default=120,
                       help="frames per scene at 60 fps (default 120)")
-    demo.add_argument("--reference-every", type=int, default=4, metavar="K",
-                      help="reference (1024 spp) and PSNR on every K-th frame (default 4)")
+    demo.add_argument("--reference-every", type=int, default=5, metavar="K",
+                      help="reference (1024 spp) and PSNR on every K-th frame (default 5: coprime with the 12-frame flash period, so every phase is measured)")
     demo.add_argument("--engine", choices=("CYCLES", "EEVEE"), default="CYCLES",
                       help="render engine of the blender passes (default CYCLES)")
     demo.add_argument("--samples", type=int, default=16,

@@ -6,6 +6,7 @@ from bpy.types import Panel
 
 from ..core.methods import METHODS
 from . import materials as sss_materials
+from .properties import QUALITY_METHODS
 
 
 class SSS_PT_render(Panel):
@@ -29,11 +30,25 @@ class SSS_PT_render(Panel):
         row.enabled = method is not None and method.adaptive
 
         col = layout.column(align=True)
+        col.prop(s, "quality")
+        if s.quality == "PSNR":
+            col.prop(s, "quality_psnr")
+        elif s.quality == "SPP":
+            col.prop(s, "quality_spp")
+        if s.quality != "MANUAL" and s.method not in QUALITY_METHODS:
+            col.label(text="Quality applies to Fixed and the adaptive methods", icon="INFO")
+        manual = s.quality == "MANUAL"
+
+        col = layout.column(align=True)
         col.active = method is not None and method.adaptive
-        col.prop(s, "target_variance")
+        row = col.row()
+        row.prop(s, "target_variance")
+        row.enabled = manual
         col.prop(s, "eta")
         col.prop(s, "kappa")
-        col.prop(s, "beta_min")
+        row = col.row()
+        row.prop(s, "beta_min")
+        row.enabled = manual
         col.prop(s, "beta_max")
         col.prop(s, "eps_u")
         sub = col.column(align=True)
@@ -45,6 +60,7 @@ class SSS_PT_render(Panel):
         row = col.row()
         row.prop(s, "fixed_spp")
         row.active = s.method == "fixed"
+        row.enabled = manual
         col.prop(s, "use_reference")
         row = col.row()
         row.prop(s, "reference_spp")

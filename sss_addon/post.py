@@ -475,6 +475,15 @@ def post_process(
     for folder in (out, *(run.folder for run in runs.values())):
         make_output_folder(folder)
         _remove_stale_temporaries(folder)
+    if overwrite:
+        # Results this run will not write (frames no longer in the sequence, the
+        # reference's skipped frames) must not pass for this run's.
+        for run in runs.values():
+            planned = {p.name for i, (_, p) in enumerate(frames)
+                       if run.name != "reference" or i % reference_every == 0}
+            for old in run.folder.glob("*.exr"):
+                if old.stem.isdigit() and old.name not in planned:
+                    old.unlink()
     for run in runs.values():
         if not run.resumed:
             save_checkpoint(run, signature)

@@ -27,7 +27,7 @@ from bpy.props import (
 from bpy.types import PropertyGroup
 
 from ..core.methods import METHODS, enum_items
-from ..core.params import MAX_SPP, PAPER_DEFAULTS, SSSParams
+from ..core.params import MAX_SPP, PAPER_DEFAULTS, ParameterError, SSSParams
 
 _DEFAULTS = SSSParams()
 
@@ -272,6 +272,39 @@ class SSSSettings(PropertyGroup):
         soft_max=100.0,
         precision=3,
     )
+    quality: EnumProperty(
+        name="Quality",
+        description=(
+            "Pick σ0² (and β_min, or N for Fixed) from the calibration that `make bench` "
+            "measures and ships, instead of setting them by hand"
+        ),
+        items=(
+            ("MANUAL", "Manual", "Use σ0², β_min and N as set below"),
+            ("PSNR", "Target PSNR", "Aim at a mean PSNR in dB against the reference"),
+            ("SPP", "Sample Budget", "Aim at a mean number of distant samples per SSS pixel"),
+        ),
+        default="MANUAL",
+    )
+    quality_psnr: FloatProperty(
+        name="Target PSNR",
+        description="Mean luminance PSNR over SSS pixels to aim at, in dB (display-referred)",
+        default=45.0,
+        min=10.0,
+        max=99.0,
+        soft_min=30.0,
+        soft_max=60.0,
+        precision=1,
+    )
+    quality_spp: FloatProperty(
+        name="Sample Budget",
+        description="Mean distant samples per SSS pixel to aim at (samples per pixel)",
+        default=24.0,
+        min=1.0,
+        max=float(MAX_SPP),
+        soft_min=1.0,
+        soft_max=128.0,
+        precision=1,
+    )
 
     # -- run settings ------------------------------------------------------------------------
     engine: EnumProperty(
@@ -410,12 +443,18 @@ def _material_participates(material) -> bool:
     return participates(material)
 
 
-def settings_to_params(settings: SSSSettings) -> SSSParams:
+#: Methods the Quality setting applies to (those with σ0² or N in the calibration).
+QUALITY_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
+
+
+def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSParams:
     """Build the core's parameter object from ``scene.sss_settings``.
 
     Parameters
     ----------
     settings : SSSSettings
+    method : str, optional
+        The method the parameters are for (default ``settings.method``).
 
     Returns
     -------
@@ -424,9 +463,13 @@ def settings_to_params(settings: SSSSettings) -> SSSParams:
     Raises
     ------
     core.params.ParameterError
-        Only for combinations the UI limits cannot exclude (none at present).
+        ``quality`` set but the shipped calibration cannot be read.
+
+    With ``quality`` other than MANUAL and a method of :data:`QUALITY_METHODS`,
+    σ0² and β_min (``fixed``: N) come from :func:`core.quality.apply` on the
+    shipped calibration; other methods have neither and ignore it.
     """
-    return SSSParams(
+    params = SSSParams(
         eta=_decimal(settings.eta),
         target_variance=_decimal(settings.target_variance),
         eps_u=_decimal(settings.eps_u),
@@ -441,6 +484,18 @@ def settings_to_params(settings: SSSSettings) -> SSSParams:
         history_precision=str(settings.history_precision),
         exposure=_decimal(settings.exposure),
     )
+    quality = getattr(settings, "quality", "MANUAL")
+    method = settings.method if method is None else method
+    if quality == "MANUAL" or method not in QUALITY_METHODS:
+        return params
+    from ..core import quality as calibrated
+
+    target = (f"{settings.quality_psnr:g}dB" if quality == "PSNR"
+              else f"{settings.quality_spp:g}spp")
+    try:
+        return calibrated.apply(params, target, method)[0]
+    except (OSError, ValueError) as exc:  # a missing or unreadable calibration file
+        raise ParameterError(f"quality: {exc}") from None
 
 
 def _decimal(value: float) -> float:

@@ -411,13 +411,16 @@ def job_from_scene(
     from .properties import frame_range, settings_to_params
 
     settings = scene.sss_settings
+    names = list(methods) if methods else [settings.method]
     if params is None or isinstance(params, Mapping):
-        params = settings_to_params(settings).replace(**dict(params or {}))
+        # The quality target calibrates the method shown (the first that is not the reference).
+        shown = next((n for n in names if n != "reference"), names[0])
+        params = settings_to_params(settings, shown).replace(**dict(params or {}))
     return prepare(
         scene,
         frames if frames is not None else frame_range(scene),
         out if out is not None else resolve_output_dir(settings),
-        list(methods) if methods else [settings.method],
+        names,
         params,
         engine=engine or settings.engine,
         overwrite=settings.overwrite if overwrite is None else overwrite,

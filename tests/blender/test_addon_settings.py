@@ -69,6 +69,41 @@ def test_hard_limits_make_invalid_params_impossible(fresh):
     settings_to_params(s)
 
 
+def test_quality_picks_the_calibrated_parameters(fresh, monkeypatch):
+    from cvsss.core import quality
+    from cvsss.core.params import ParameterError
+
+    s = fresh.sss_settings
+    s.method = "as_ccv"
+    s.target_variance = 0.5  # ignored once a quality target is set
+    s.quality = "PSNR"
+    s.quality_psnr = 45.0
+    expected, _ = quality.apply(SSSParams(), "45dB", "as_ccv")
+    assert settings_to_params(s) == expected and expected.target_variance != 0.5
+    s.quality = "SPP"
+    s.quality_spp = 12.0
+    low = settings_to_params(s)
+    s.quality_spp = 48.0
+    high = settings_to_params(s)
+    assert high.target_variance < low.target_variance  # more samples: smaller σ0²
+    # The job's method, not the panel's, is calibrated; methods without σ0² ignore it.
+    assert settings_to_params(s, "as") == quality.apply(SSSParams(), "48spp", "as")[0]
+    s.method = "separable"
+    assert settings_to_params(s).target_variance == pytest.approx(0.5)
+    assert s.bl_rna.properties["quality_spp"].hard_min == 1.0  # the core's smallest budget
+    s.method = "as_ccv"
+
+    def missing(*args, **kwargs):
+        raise FileNotFoundError("no such file: quality_calibration.json")
+
+    monkeypatch.setattr(quality, "load_calibration", missing)
+    with pytest.raises(ParameterError, match="quality: no such file"):
+        settings_to_params(s)
+    monkeypatch.undo()
+    s.quality = "MANUAL"
+    assert settings_to_params(s).target_variance == pytest.approx(0.5)
+
+
 def test_cv_mode_follows_the_method_table(fresh):
     s = fresh.sss_settings
     for method in METHODS.values():

@@ -114,3 +114,14 @@ def test_reference_every_below_one_is_refused(passes, tmp_path, capsys):
     assert code == 2
     assert "--reference-every must be >= 1, got 0" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_overwrite_removes_results_the_new_run_does_not_make(passes, tmp_path):
+    out = tmp_path / "out"
+    common = ["post", str(passes), "--out", str(out), "--method", "as", "--reference",
+              "--reference-spp", "32", "--quiet"]
+    assert cli.main(common) == 0
+    assert len(list((out / "reference").glob("*.exr"))) == 4
+    assert cli.main([*common, "--overwrite", "--reference-every", "2"]) == 0
+    assert sorted(p.name for p in (out / "reference").glob("*.exr")) == ["0001.exr", "0003.exr"]
+    assert len(list((out / "as").glob("*.exr"))) == 4

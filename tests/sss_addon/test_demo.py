@@ -1,0 +1,86 @@
+"""`cvsss demo`: the main job end to end on tiny synthetic passes (no bpy).
+
+The Blender source of the same command is tested in tests/blender/test_demo_blender.py.
+"""
+
+import csv
+import json
+
+import pytest
+
+from cvsss.sss_addon import cli, demo
+
+
+@pytest.fixture(scope="module")
+def small_demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    code = cli.main(["demo", "--source", "synthetic", "--out", str(out), "--res", "40x24",
+                     "--frames", "6", "--reference-every", "2", "--reference-spp", "128"])
+    assert code == 0
+    return out
+
+
+def test_summary_has_every_scene_and_method(small_demo):
+    summary = json.loads((small_demo / "summary.json").read_text())
+    assert list(summary) == list(demo.SYNTHETIC_SCENES)
+    for scene, methods in summary.items():
+        assert list(methods) == ["reference", *[m for m in demo.DEMO_METHODS if m != "reference"]]
+        for method, v in methods.items():
+            assert {"spp", "pass_ms", "psnr_db", "spp_max"} <= set(v)
+            assert 0 <= v["spp"] <= v["spp_max"] and v["pass_ms"] > 0
+            assert 15 < v["psnr_db"] <= 100, (scene, method)
+        # fixed takes N = 64 where distant scattering is needed (gamma >= eps_u), 0 elsewhere
+        assert 0 < methods["fixed"]["spp"] <= 64
+        assert 0 < methods["reference"]["spp"] <= 128 and methods["separable"]["spp"] == 17
+
+
+def test_reference_only_on_every_kth_frame(small_demo):
+    rows = list(csv.DictReader(open(small_demo / "flash" / "metrics.csv")))
+    assert [int(r["frame"]) for r in rows if r["method"] == "reference"] == [1, 3, 5]
+    psnr_frames = [int(r["frame"]) for r in rows if r["method"] == "as" and r["psnr_db"]]
+    assert psnr_frames == [1, 3, 5]
+    assert len([r for r in rows if r["method"] == "as_ccv"]) == 6
+
+
+def test_report_lists_table_targets_and_plots(small_demo):
+    report = (small_demo / "report.md").read_text()
+    assert "| flash | as_ccv |" in report and "| regular | separable |" in report
+    assert "## Targets" in report and "spp AS / AS+CCV >= 1.8" in report
+    assert "every 2nd frame (frames 1, 3, …)" in report
+    for name in ("flash_frames.png", "regular_strip_as_ccv.png", "pareto.png"):
+        assert f"({name})" in report
+        assert (small_demo / name).stat().st_size > 1000
+
+
+def test_bad_scene_is_one_clear_error(tmp_path, capsys):
+    code = cli.main(["demo", "--source", "synthetic", "--scenes", "boids", "--out",
+                     str(tmp_path / "d")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --scenes must be a list of flash, regular (--source synthetic)")
+    assert "Traceback" not in err and not (tmp_path / "d").exists()
+
+
+def test_pass_cache_follows_the_settings(tmp_path):
+    out = tmp_path / "d"
+    base = ["demo", "--source", "synthetic", "--scenes", "flash", "--out", str(out),
+            "--reference-every", "3", "--reference-spp", "32"]
+    assert cli.main([*base, "--res", "24x16", "--frames", "5"]) == 0
+    passes = out / "flash" / "passes"
+    first = {p.name: p.stat().st_mtime_ns for p in passes.iterdir()}
+    assert len(first) == 10  # 5 EXRs + 5 sidecars
+    assert cli.main([*base, "--res", "24x16", "--frames", "5"]) == 0  # same settings: reused
+    assert {p.name: p.stat().st_mtime_ns for p in passes.iterdir()} == first
+    # Fewer frames: the extra frames go (they would enter the summary otherwise).
+    assert cli.main([*base, "--res", "24x16", "--frames", "3"]) == 0
+    assert sorted(p.name for p in passes.glob("*.exr")) == ["0001.exr", "0002.exr", "0003.exr"]
+    rows = list(csv.DictReader(open(out / "flash" / "metrics.csv")))
+    assert {int(r["frame"]) for r in rows} == {1, 2, 3}
+    assert sorted(p.name for p in (out / "flash" / "as").glob("*.exr")) == [
+        "0001.exr", "0002.exr", "0003.exr"]
+    # Passes of unknown origin (no stamp) are not trusted either.
+    (out / "flash" / "demo.json").unlink()
+    mtime = (passes / "0001.exr").stat().st_mtime_ns
+    assert cli.main([*base, "--res", "24x16", "--frames", "3"]) == 0
+    assert (passes / "0001.exr").stat().st_mtime_ns != mtime
+    assert json.loads((out / "flash" / "demo.json").read_text())["frames"] == 3
