@@ -51,7 +51,9 @@ def sample_counts(
         ratio = var / s0
         delta = (ratio - 1.0) * mbar * (2.0 / params.eta - 2.0)
         m_hat = params.kappa * delta + ratio * mbar
-    m_hat = np.nan_to_num(m_hat, nan=params.beta_max, posinf=params.beta_max, neginf=params.beta_min)
+    m_hat = np.nan_to_num(
+        m_hat, nan=params.beta_max, posinf=params.beta_max, neginf=params.beta_min
+    )
     m = np.clip(np.rint(m_hat), params.beta_min, params.beta_max).astype(np.int32)
     m[np.asarray(gamma_max) < params.eps_u] = 0
     return m

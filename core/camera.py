@@ -63,8 +63,14 @@ class Camera:
             raise ValueError(f"camera type must be one of {CAMERA_TYPES}, got {self.type!r}")
         if self.sensor_fit not in SENSOR_FITS:
             raise ValueError(f"sensor_fit must be one of {SENSOR_FITS}, got {self.sensor_fit!r}")
-        for name in ("lens", "sensor_width", "sensor_height", "ortho_scale",
-                     "pixel_aspect_x", "pixel_aspect_y"):
+        for name in (
+            "lens",
+            "sensor_width",
+            "sensor_height",
+            "ortho_scale",
+            "pixel_aspect_x",
+            "pixel_aspect_y",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"camera {name} must be a positive finite number, got {value!r}")

@@ -149,8 +149,19 @@ def prepare(depth: np.ndarray, material: np.ndarray, camera, profile: Profile) -
     region = profile.region(r0, mat)
     y, x = np.divmod(index, w)
     return Geometry(
-        shape=(h, w), index=index, x=x, y=y, mat=mat, depth=z, fw=fw, fh=fh, r0=r0,
-        gamma=region.gamma, weight_scale=region.weight_scale, lo=region.lo, hi=region.hi,
+        shape=(h, w),
+        index=index,
+        x=x,
+        y=y,
+        mat=mat,
+        depth=z,
+        fw=fw,
+        fh=fh,
+        r0=r0,
+        gamma=region.gamma,
+        weight_scale=region.weight_scale,
+        lo=region.lo,
+        hi=region.hi,
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
     )
 
@@ -265,8 +276,9 @@ def estimate_distant(
         local = np.repeat(np.arange(m), c)
         starts = (np.cumsum(c) - c).astype(np.uint32)
         k = np.arange(1, n + 1, dtype=np.uint32) - np.repeat(starts, c)
-        u, v = r2_points_fixed(np.repeat(sx_all[a:b], c), np.repeat(sy_all[a:b], c), k,
-                               dtype=np.float32)
+        u, v = r2_points_fixed(
+            np.repeat(sx_all[a:b], c), np.repeat(sy_all[a:b], c), k, dtype=np.float32
+        )
 
         # Pick channel c with probability γ_c/Σγ, then rescale u to reuse it.
         e = edges[a:b]

@@ -50,6 +50,7 @@ __all__ = [
     "PassError",
     "Sidecar",
     "list_frames",
+    "make_folder",
     "make_sidecar",
     "motion_from_vector",
     "read_frame",
@@ -803,7 +804,7 @@ def _write_atomic(files: list[tuple[Path, object]], overwrite: bool) -> None:
             if path.exists():
                 raise _exists_error(path)
     for folder in dict.fromkeys(path.parent for path, _ in files):
-        _make_folder(folder)
+        make_folder(folder)
     staged: list[_Staged] = []
     created: list[Path] = []
     current = files[0][0]
@@ -838,7 +839,7 @@ def _write_atomic(files: list[tuple[Path, object]], overwrite: bool) -> None:
             stage.discard()
 
 
-def _make_folder(folder: Path) -> None:
+def make_folder(folder: Path) -> None:
     """Create ``folder`` and its parents, or raise OutputError naming the culprit."""
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -50,18 +50,29 @@ class MaterialSpec:
             raise ValueError(f"material slot must be an integer >= 1, got {self.slot!r}")
         d = tuple(float(v) for v in self.d)
         if len(d) != 3 or not all(np.isfinite(d)) or min(d) < 0:
-            raise ValueError(f"material {self.name!r}: d must be 3 finite values >= 0, got {self.d!r}")
+            raise ValueError(
+                f"material {self.name!r}: d must be 3 finite values >= 0, got {self.d!r}"
+            )
         object.__setattr__(self, "d", d)
 
     def to_dict(self) -> dict:
-        return {"slot": self.slot, "name": self.name, "d": list(self.d),
-                "profile": self.profile, "options": dict(self.options)}
+        return {
+            "slot": self.slot,
+            "name": self.name,
+            "d": list(self.d),
+            "profile": self.profile,
+            "options": dict(self.options),
+        }
 
     @classmethod
     def from_dict(cls, data: dict) -> MaterialSpec:
-        return cls(slot=int(data["slot"]), name=str(data.get("name", f"slot{data['slot']}")),
-                   d=tuple(data["d"]), profile=str(data.get("profile", "burley")),
-                   options=dict(data.get("options", {})))
+        return cls(
+            slot=int(data["slot"]),
+            name=str(data.get("name", f"slot{data['slot']}")),
+            d=tuple(data["d"]),
+            profile=str(data.get("profile", "burley")),
+            options=dict(data.get("options", {})),
+        )
 
 
 def _clean(name: str, array: np.ndarray, shape: tuple, channels: int | None) -> np.ndarray:

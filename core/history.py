@@ -47,8 +47,10 @@ COV_FIELDS = ("sxx", "sxy", "syy")
 REPROJECT_DEPTH_TOLERANCE = 0.1
 
 
-_FINITE_MAX = {"float32": float(np.finfo(np.float32).max),
-               "float16": float(np.finfo(np.float16).max)}
+_FINITE_MAX = {
+    "float32": float(np.finfo(np.float32).max),
+    "float16": float(np.finfo(np.float16).max),
+}
 
 
 def _storage(dtype: str) -> np.dtype:
@@ -249,13 +251,16 @@ class History:
     @classmethod
     def from_arrays(cls, arrays, prefix: str = "") -> History:
         """Inverse of :meth:`to_arrays` (``arrays``: a mapping or an open ``.npz``)."""
+
         def get(key: str) -> np.ndarray:
             return np.asarray(arrays[prefix + key]).copy()
 
         keys = list(arrays.keys()) if hasattr(arrays, "keys") else list(arrays.files)
         h, w, frame = (int(v) for v in get("meta"))
         start = prefix + "buf_"
-        buffers = {k[len(start):]: np.asarray(arrays[k]).copy() for k in keys if k.startswith(start)}
+        buffers = {
+            k[len(start) :]: np.asarray(arrays[k]).copy() for k in keys if k.startswith(start)
+        }
         # Checkpoints written before var_scale existed stored σ² unscaled.
         var_scale = float(get("var_scale")) if prefix + "var_scale" in keys else 1.0
         return cls(

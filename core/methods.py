@@ -47,8 +47,15 @@ class Method:
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
-        Method("none", "Diffuse", "No subsurface scattering: the diffuse passes as rendered", "none"),
-        Method("fixed", "Fixed N", "Burley importance sampling with the same N samples per pixel", "fixed"),
+        Method(
+            "none", "Diffuse", "No subsurface scattering: the diffuse passes as rendered", "none"
+        ),
+        Method(
+            "fixed",
+            "Fixed N",
+            "Burley importance sampling with the same N samples per pixel",
+            "fixed",
+        ),
         Method("as", "AS", "SPVG adaptive sample counts from the per-pixel history", "adaptive"),
         Method(
             "as_ocv",
@@ -86,9 +93,7 @@ def get_method(name: str) -> Method:
     try:
         return METHODS[name]
     except KeyError:
-        raise ValueError(
-            f"method must be one of {', '.join(METHODS)}, got {name!r}"
-        ) from None
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {name!r}") from None
 
 
 def enum_items() -> list[tuple[str, str, str]]:

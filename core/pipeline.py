@@ -89,8 +89,9 @@ def default_profile(frame: Frame, params: SSSParams) -> Profile:
     """Profile of the frame's materials (scene units): each MaterialSpec's ``profile``
     and ``options`` (core.profiles.factory); plain Burley when none asks otherwise."""
     if all(s.profile == "burley" and not s.options for s in frame.materials.values()):
-        return BurleyProfile(frame.d_table(), truncate=params.truncate,
-                             inverse=params.burley_inverse)
+        return BurleyProfile(
+            frame.d_table(), truncate=params.truncate, inverse=params.burley_inverse
+        )
     from .profiles.factory import frame_profile
 
     return frame_profile(frame, params)
@@ -137,8 +138,15 @@ class SequenceProcessor:
 
     # -- helpers ---------------------------------------------------------------
     def _profile_for(self, frame: Frame) -> Profile:
-        key = (tuple(sorted((k, v.d, v.profile, repr(sorted(v.options.items())))
-                            for k, v in frame.materials.items())), frame.material.max(initial=0))
+        key = (
+            tuple(
+                sorted(
+                    (k, v.d, v.profile, repr(sorted(v.options.items())))
+                    for k, v in frame.materials.items()
+                )
+            ),
+            frame.material.max(initial=0),
+        )
         if key != self._profile_key:
             self._profile = self.profile_factory(frame, self.params)
             self._profile_key = key
@@ -201,8 +209,15 @@ class SequenceProcessor:
         seed = p.seed ^ REFERENCE_SALT if self.method.counts == "reference" else p.seed
         t0 = time.perf_counter()
         est = estimate_distant(
-            geom, frame.lighting, frame.depth, frame.material, profile, m,
-            frame=frame.number, seed=seed, depth_slope=p.depth_slope,
+            geom,
+            frame.lighting,
+            frame.depth,
+            frame.material,
+            profile,
+            m,
+            frame=frame.number,
+            seed=seed,
+            depth_slope=p.depth_slope,
             chunk_samples=p.chunk_samples,
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
@@ -286,8 +301,13 @@ class SequenceProcessor:
         else:
             tracked = f_bar
         mu, var, mbar, new_valid = adaptive.update_history(
-            hist.read("mu", idx), hist.read("var", idx), hist.read("mbar", idx),
-            valid, tracked, m, p,
+            hist.read("mu", idx),
+            hist.read("var", idx),
+            hist.read("mbar", idx),
+            valid,
+            tracked,
+            m,
+            p,
         )
         hist.write("mu", idx, mu)
         hist.write("var", idx, var)

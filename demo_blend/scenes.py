@@ -169,8 +169,9 @@ def _fresh_collection(scene, name: str):
     if old is not None:
         for obj in list(old.all_objects):
             data = obj.data
-            settings = [m.particle_system.settings for m in obj.modifiers
-                        if m.type == "PARTICLE_SYSTEM"]
+            settings = [
+                m.particle_system.settings for m in obj.modifiers if m.type == "PARTICLE_SYSTEM"
+            ]
             bpy.data.objects.remove(obj, do_unlink=True)
             if data is not None and data.users == 0:
                 _remove_data(data)
@@ -228,8 +229,7 @@ def _box(name, collection, size, material, location, rotation=(0.0, 0.0, 0.0)):
 
 def _sphere(name, collection, radius, material, location, segments=32):
     def make(bm):
-        bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=segments // 2,
-                                  radius=radius)
+        bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=segments // 2, radius=radius)
 
     obj = _mesh_object(name, collection, make, smooth=True)
     _place(obj, location)
@@ -241,9 +241,16 @@ def _cylinder(name, collection, radius, height, material, location, segments=32)
     """Upright capped cylinder standing on ``location``."""
 
     def make(bm):
-        bmesh.ops.create_cone(bm, cap_ends=True, cap_tris=False, segments=segments,
-                              radius1=radius, radius2=radius, depth=height,
-                              matrix=Matrix.Translation((0.0, 0.0, height / 2)))
+        bmesh.ops.create_cone(
+            bm,
+            cap_ends=True,
+            cap_tris=False,
+            segments=segments,
+            radius1=radius,
+            radius2=radius,
+            depth=height,
+            matrix=Matrix.Translation((0.0, 0.0, height / 2)),
+        )
 
     obj = _mesh_object(name, collection, make, smooth=True)
     _place(obj, location)
@@ -473,8 +480,9 @@ def _candle(prefix, index, collection, wax, flame_mat, location, height, radius,
     obj.location = (x, y, flame_z + 0.004)
     collection.objects.link(obj)
     keys = range(1, frames + 1)
-    keyframe_values(light, "energy", keys,
-                    [CANDLE_POWER * flicker(f, SEED * 100 + index) for f in keys])
+    keyframe_values(
+        light, "energy", keys, [CANDLE_POWER * flicker(f, SEED * 100 + index) for f in keys]
+    )
     return body, flame, obj
 
 
@@ -499,10 +507,12 @@ def _build_flash(scene, collection, frames: int) -> None:
     # subjects at y = 0, over the curved SSS surfaces.
     rotation = (60.0, 0.0, -20.0)
     dark = diffuse_material("cvsss Dark", (0.05, 0.05, 0.05))
-    for i, (x, y, z) in enumerate(_blind(rotation, height=1.0, at=0.15, lines=BLIND_LINES,
-                                         spacing=0.2)):
-        slat = _box(f"flash Slat {i}", collection, (2.4, 0.04, 0.01), dark, (x, y, z),
-                    (0.0, 0.0, 8.0))
+    for i, (x, y, z) in enumerate(
+        _blind(rotation, height=1.0, at=0.15, lines=BLIND_LINES, spacing=0.2)
+    ):
+        slat = _box(
+            f"flash Slat {i}", collection, (2.4, 0.04, 0.01), dark, (x, y, z), (0.0, 0.0, 8.0)
+        )
         slat.visible_camera = False  # only its shadow matters (it hangs above, out of view)
 
     sun = _sun("flash Sun", collection, flash_strength(1), rotation, angle=0.5)
@@ -512,8 +522,10 @@ def _build_flash(scene, collection, frames: int) -> None:
     scene.camera = _camera("flash Camera", collection, (0.0, -1.5, 0.5), (0.0, 0.0, 0.14))
 
 
-@demo("regular", "Marble table with skin, marble and three flickering wax candles; "
-      "a lamp switched every 3 s")
+@demo(
+    "regular",
+    "Marble table with skin, marble and three flickering wax candles; " "a lamp switched every 3 s",
+)
 def _build_regular(scene, collection, frames: int) -> None:
     _world(scene, 0.02)
     _table("regular", collection, diffuse_material("cvsss Floor", (0.3, 0.28, 0.26)))
@@ -525,8 +537,9 @@ def _build_regular(scene, collection, frames: int) -> None:
 
     wax = wax_material()
     flame = emission_material("cvsss Flame", (1.0, 0.6, 0.25), 30.0)
-    for i, (x, y, h, r) in enumerate(((0.05, -0.12, 0.12, 0.028), (0.2, -0.0, 0.18, 0.032),
-                                      (-0.45, -0.04, 0.1, 0.03))):
+    for i, (x, y, h, r) in enumerate(
+        ((0.05, -0.12, 0.12, 0.028), (0.2, -0.0, 0.18, 0.032), (-0.45, -0.04, 0.1, 0.03))
+    ):
         _candle("regular", i, collection, wax, flame, (x, y, 0.02), h, r, frames)
 
     light = bpy.data.lights.new("regular Lamp", "AREA")
@@ -534,12 +547,14 @@ def _build_regular(scene, collection, frames: int) -> None:
     light.size = 0.25
     lamp = bpy.data.objects.new("regular Lamp", light)
     lamp.location = (-0.7, -0.6, 1.3)
-    lamp.rotation_euler = (Vector((0.0, 0.1, 0.1)) - lamp.location).to_track_quat(
-        "-Z", "Y").to_euler()
+    lamp.rotation_euler = (
+        (Vector((0.0, 0.1, 0.1)) - lamp.location).to_track_quat("-Z", "Y").to_euler()
+    )
     collection.objects.link(lamp)
     keys = range(1, frames + 1)
-    keyframe_values(light, "energy", keys, [LAMP_POWER * lamp_on(f) for f in keys],
-                    interpolation="CONSTANT")
+    keyframe_values(
+        light, "energy", keys, [LAMP_POWER * lamp_on(f) for f in keys], interpolation="CONSTANT"
+    )
 
     scene.camera = _camera("regular Camera", collection, (0.0, -1.5, 0.5), (0.0, 0.0, 0.12))
 
@@ -559,8 +574,14 @@ def _build_boids(scene, collection, frames: int) -> None:
     _sun("boids Sun", collection, 0.8, (12.0, 0.0, 30.0), angle=1.0)
 
     # Boids: small dark moths attracted to the flame, flocking and keeping apart.
-    moth = _sphere("boids Moth", collection, 0.012, diffuse_material(
-        "cvsss Moth", (0.08, 0.07, 0.06)), (0.0, 0.0, -5.0), 8)
+    moth = _sphere(
+        "boids Moth",
+        collection,
+        0.012,
+        diffuse_material("cvsss Moth", (0.08, 0.07, 0.06)),
+        (0.0, 0.0, -5.0),
+        8,
+    )
     moth.hide_render = True  # the instanced source; its instances render
     moth.scale = (1.6, 1.0, 0.6)
     goal = bpy.data.objects.new("boids Goal", None)
@@ -568,8 +589,10 @@ def _build_boids(scene, collection, frames: int) -> None:
     collection.objects.link(goal)
 
     emitter = _mesh_object(
-        "boids Emitter", collection,
-        lambda bm: bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=0.15))
+        "boids Emitter",
+        collection,
+        lambda bm: bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=0.15),
+    )
     emitter.location = (0.1, 0.1, 0.45)
     emitter.show_instancer_for_render = False
     emitter.show_instancer_for_viewport = False

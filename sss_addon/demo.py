@@ -36,12 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.exr import write_passes
+from ..core.exr import make_folder, write_passes
 from ..core.metrics import median3
 from ..core.params import SSSParams
 from ..core.synthetic import sequence
 from . import report as plots
-from .post import make_output_folder, post_process, write_text_atomic
+from .post import post_process, write_text_atomic
 
 #: Methods compared by the demo, in report order.
 DEMO_METHODS = ("as", "as_ocv", "as_ccv", "fixed", "separable", "reference")
@@ -59,12 +59,21 @@ STEADY = 1.5
 
 #: The paper's Table 3 (UE4, 2560×1440, RTX 2080 Ti), for orientation.
 PAPER_TABLE3 = {
-    "flash": {"spp": (61.97, 29.58, 26.88), "pass_ms": (1.47, 0.80, 0.75),
-              "psnr_db": (51.19, 49.55, 49.43)},
-    "regular": {"spp": (26.51, 18.32, 17.82), "pass_ms": (3.39, 2.55, 2.58),
-                "psnr_db": (47.85, 47.57, 47.55)},
-    "dynamic": {"spp": (22.01, 14.70, 14.13), "pass_ms": (2.02, 1.54, 1.52),
-                "psnr_db": (50.62, 49.11, 49.11)},
+    "flash": {
+        "spp": (61.97, 29.58, 26.88),
+        "pass_ms": (1.47, 0.80, 0.75),
+        "psnr_db": (51.19, 49.55, 49.43),
+    },
+    "regular": {
+        "spp": (26.51, 18.32, 17.82),
+        "pass_ms": (3.39, 2.55, 2.58),
+        "psnr_db": (47.85, 47.57, 47.55),
+    },
+    "dynamic": {
+        "spp": (22.01, 14.70, 14.13),
+        "pass_ms": (2.02, 1.54, 1.52),
+        "psnr_db": (50.62, 49.11, 49.11),
+    },
 }
 
 
@@ -93,12 +102,16 @@ def summarize(rows: Sequence[dict]) -> dict:
 
 
 def _table(summary: dict) -> str:
-    lines = ["| scene | method | mean spp | max spp | pass ms | PSNR dB |",
-             "| --- | --- | ---: | ---: | ---: | ---: |"]
+    lines = [
+        "| scene | method | mean spp | max spp | pass ms | PSNR dB |",
+        "| --- | --- | ---: | ---: | ---: | ---: |",
+    ]
     for scene, methods in summary.items():
         for m, v in methods.items():
-            lines.append(f"| {scene} | {m} | {v['spp']:.2f} | {v['spp_max']:.2f} | "
-                         f"{v['pass_ms']:.2f} | {v['psnr_db']:.2f} |")
+            lines.append(
+                f"| {scene} | {m} | {v['spp']:.2f} | {v['spp_max']:.2f} | "
+                f"{v['pass_ms']:.2f} | {v['psnr_db']:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -111,41 +124,87 @@ def check_targets(summary: dict) -> list[dict]:
         min_ratio, max_loss = TARGETS.get(scene, TARGETS["regular"])
         ratio = s["as"]["spp"] / max(s["as_ccv"]["spp"], 1e-12)
         loss = s["as"]["psnr_db"] - s["as_ccv"]["psnr_db"]
-        rows.append({"scene": scene, "check": f"spp AS / AS+CCV >= {min_ratio}",
-                     "value": ratio, "met": bool(ratio >= min_ratio)})
-        rows.append({"scene": scene, "check": f"PSNR loss AS -> AS+CCV <= {max_loss} dB",
-                     "value": loss, "met": bool(loss <= max_loss)})
+        rows.append(
+            {
+                "scene": scene,
+                "check": f"spp AS / AS+CCV >= {min_ratio}",
+                "value": ratio,
+                "met": bool(ratio >= min_ratio),
+            }
+        )
+        rows.append(
+            {
+                "scene": scene,
+                "check": f"PSNR loss AS -> AS+CCV <= {max_loss} dB",
+                "value": loss,
+                "met": bool(loss <= max_loss),
+            }
+        )
         for m in ("as_ocv", "as_ccv", "as"):
             if m in s:
                 steady = s[m]["spp_max"] / max(s[m]["spp_median"], 1e-12)
-                rows.append({"scene": scene, "check": f"{m}: max spp / median spp <= {STEADY}",
-                             "value": steady, "met": bool(steady <= STEADY) if m != "as" else None})
+                rows.append(
+                    {
+                        "scene": scene,
+                        "check": f"{m}: max spp / median spp <= {STEADY}",
+                        "value": steady,
+                        "met": bool(steady <= STEADY) if m != "as" else None,
+                    }
+                )
     return rows
 
 
 def write_report(out: Path, summary: dict, header: list[str], beta_max: int) -> Path:
     """report.md with the table beside the paper's, targets, and the plots."""
-    lines = ["# cvsss demo report", "", *header, "", "## Measured", "", _table(summary), "",
-             "## The paper's Table 3 (UE4, 2560×1440, RTX 2080 Ti), AS / +OCV / +CCV", "",
-             "| scene | spp | pass ms | PSNR dB |", "| --- | --- | --- | --- |"]
+    lines = [
+        "# cvsss demo report",
+        "",
+        *header,
+        "",
+        "## Measured",
+        "",
+        _table(summary),
+        "",
+        "## The paper's Table 3 (UE4, 2560×1440, RTX 2080 Ti), AS / +OCV / +CCV",
+        "",
+        "| scene | spp | pass ms | PSNR dB |",
+        "| --- | --- | --- | --- |",
+    ]
     for scene, v in PAPER_TABLE3.items():
-        lines.append(f"| {scene} | {' / '.join(map(str, v['spp']))} | "
-                     f"{' / '.join(map(str, v['pass_ms']))} | {' / '.join(map(str, v['psnr_db']))} |")
-    lines += ["", "## Targets", "", "| scene | check | measured | met |", "| --- | --- | ---: | --- |"]
+        lines.append(
+            f"| {scene} | {' / '.join(map(str, v['spp']))} | "
+            f"{' / '.join(map(str, v['pass_ms']))} | {' / '.join(map(str, v['psnr_db']))} |"
+        )
+    lines += [
+        "",
+        "## Targets",
+        "",
+        "| scene | check | measured | met |",
+        "| --- | --- | ---: | --- |",
+    ]
     for r in check_targets(summary):
         met = {True: "yes", False: "**no**", None: "(reference: AS alone)"}[r["met"]]
         lines.append(f"| {r['scene']} | {r['check']} | {r['value']:.2f} | {met} |")
     lines += ["", "## Plots", ""]
     for scene in summary:
-        for name, text in ((f"{scene}_frames.png", f"{scene}: per frame (cf. the paper's Fig. 8)"),
-                           (f"{scene}_strip_as.png", f"{scene}: AS sample counts"),
-                           (f"{scene}_strip_as_ccv.png", f"{scene}: AS + CCV sample counts")):
+        for name, text in (
+            (f"{scene}_frames.png", f"{scene}: per frame (cf. the paper's Fig. 8)"),
+            (f"{scene}_strip_as.png", f"{scene}: AS sample counts"),
+            (f"{scene}_strip_as_ccv.png", f"{scene}: AS + CCV sample counts"),
+        ):
             if (out / name).exists():
                 lines += [f"### {text}", "", f"![{text}]({name})", ""]
     if (out / "pareto.png").exists():
-        lines += ["### PSNR against sampling-pass time, every method", "", "![pareto](pareto.png)", ""]
-    lines += ["Sample-count maps share the colour scale [0, β_max = "
-              f"{beta_max}]; grey is outside the SSS materials."]
+        lines += [
+            "### PSNR against sampling-pass time, every method",
+            "",
+            "![pareto](pareto.png)",
+            "",
+        ]
+    lines += [
+        "Sample-count maps share the colour scale [0, β_max = "
+        f"{beta_max}]; grey is outside the SSS materials."
+    ]
     path = out / "report.md"
     write_text_atomic(path, "\n".join(lines) + "\n")
     return path
@@ -159,13 +218,16 @@ def make_plots(out: Path, scene: str, rows_frames: list[int], beta_max: int) -> 
     picks = sorted(set(np.linspace(rows_frames[0], rows_frames[-1], 5).round().astype(int)))
     for method in ("as", "as_ccv"):
         if (scene_dir / method).is_dir():
-            plots.plot_strip(scene_dir, method, picks, out / f"{scene}_strip_{method}.png", beta_max)
+            plots.plot_strip(
+                scene_dir, method, picks, out / f"{scene}_strip_{method}.png", beta_max
+            )
     mid = picks[len(picks) // 2]
     plots.plot_preview(scene_dir, "as_ccv", mid, out / f"{scene}_preview_{mid:04d}.png", beta_max)
 
 
-def _pass_cache(scene_dir: Path, stamp: dict, overwrite: bool,
-                log: Callable[[str], None] | None) -> Path:
+def _pass_cache(
+    scene_dir: Path, stamp: dict, overwrite: bool, log: Callable[[str], None] | None
+) -> Path:
     """Keep the pass frames of ``scene_dir`` only if they were made with ``stamp``'s settings.
 
     Frames made with other (or unknown) settings, or all with ``overwrite``,
@@ -178,24 +240,40 @@ def _pass_cache(scene_dir: Path, stamp: dict, overwrite: bool,
         old = json.loads(stamp_path.read_text())
     except (OSError, ValueError):
         old = None
-    frames = [p for p in passes.iterdir() if p.suffix in (".exr", ".json")] \
-        if passes.is_dir() else []
+    frames = (
+        [p for p in passes.iterdir() if p.suffix in (".exr", ".json")] if passes.is_dir() else []
+    )
     if frames and (overwrite or old != stamp):
         if log:
-            why = "--overwrite" if overwrite else (
-                f"made with other settings ({stamp_path})" if old else "of unknown origin")
+            why = (
+                "--overwrite"
+                if overwrite
+                else (f"made with other settings ({stamp_path})" if old else "of unknown origin")
+            )
             log(f"{stamp['scene']}: removing {len(frames)} pass file(s) {why}; making them again")
         for path in frames:
             path.unlink()
-    make_output_folder(passes)
+    make_folder(passes)
     write_text_atomic(stamp_path, json.dumps(stamp, indent=2))
     return passes
 
 
-def _synthetic_passes(scene: str, scene_dir: Path, width: int, height: int, frames: int,
-                      overwrite: bool, log: Callable[[str], None] | None) -> None:
-    stamp = {"source": "synthetic", "scene": scene, "width": width, "height": height,
-             "frames": frames}
+def _synthetic_passes(
+    scene: str,
+    scene_dir: Path,
+    width: int,
+    height: int,
+    frames: int,
+    overwrite: bool,
+    log: Callable[[str], None] | None,
+) -> None:
+    stamp = {
+        "source": "synthetic",
+        "scene": scene,
+        "width": width,
+        "height": height,
+        "frames": frames,
+    }
     passes = _pass_cache(scene_dir, stamp, overwrite, log)
     for frame in sequence(scene, frames, width, height):
         path = passes / f"{frame.number:04d}.exr"
@@ -239,9 +317,16 @@ def blender_passes(
     from . import render
 
     scene_dir = Path(scene_dir)
-    stamp = {"source": "blender", "scene": scene_name, "width": width, "height": height,
-             "frames": frames, "engine": engine, "samples": samples,
-             "blender": bpy.app.version_string}
+    stamp = {
+        "source": "blender",
+        "scene": scene_name,
+        "width": width,
+        "height": height,
+        "frames": frames,
+        "engine": engine,
+        "samples": samples,
+        "blender": bpy.app.version_string,
+    }
     _pass_cache(scene_dir, stamp, overwrite, log)
     unregister = render._ensure_registered()
     try:
@@ -256,8 +341,9 @@ def blender_passes(
         if hasattr(scene, "eevee"):
             scene.eevee.taa_render_samples = samples
         bpy.ops.wm.save_as_mainfile(filepath=str(scene_dir / f"{scene_name}.blend"), copy=True)
-        job = render.prepare(scene, (1, frames), scene_dir, methods=("as_ccv",), engine=engine,
-                             log=log)
+        job = render.prepare(
+            scene, (1, frames), scene_dir, methods=("as_ccv",), engine=engine, log=log
+        )
         for _ in render.iter_passes(job):
             pass
     except (render.RenderError, ValueError) as exc:
@@ -319,14 +405,18 @@ def run_demo(
     scenes = list(SOURCES[source] if scenes is None else scenes)
     bad = [x for x in scenes if x not in SOURCES[source]]
     if not scenes or bad:
-        raise DemoError(f"scenes of source {source!r} are {', '.join(SOURCES[source])}; "
-                        f"got {', '.join(scenes) or 'none'}")
+        raise DemoError(
+            f"scenes of source {source!r} are {', '.join(SOURCES[source])}; "
+            f"got {', '.join(scenes) or 'none'}"
+        )
     if source == "blender":
         try:
             import bpy  # noqa: F401
         except ImportError:
-            raise DemoError("the Blender demo needs bpy==5.0.1 (make demo installs it) or "
-                            "running inside Blender; --source synthetic needs neither") from None
+            raise DemoError(
+                "the Blender demo needs bpy==5.0.1 (make demo installs it) or "
+                "running inside Blender; --source synthetic needs neither"
+            ) from None
     out = Path(out)
     params = params or SSSParams()
     summary = {}
@@ -339,42 +429,79 @@ def run_demo(
         scene_dir = out / scene
         passes = scene_dir / "passes"
         if log:
-            log(stamp(f"scene {n}/{len(scenes)} {scene}: passes ({source}, {width}x{height}, "
-                      f"{frames} frames)"))
+            log(
+                stamp(
+                    f"scene {n}/{len(scenes)} {scene}: passes ({source}, {width}x{height}, "
+                    f"{frames} frames)"
+                )
+            )
         if source == "blender":
-            blender_passes(scene, scene_dir, width, height, frames, engine=engine,
-                           samples=samples, overwrite=overwrite,
-                           log=(lambda text, scene=scene: log(stamp(f"{scene}: {text}")))
-                           if log else None)
+            blender_passes(
+                scene,
+                scene_dir,
+                width,
+                height,
+                frames,
+                engine=engine,
+                samples=samples,
+                overwrite=overwrite,
+                log=(lambda text, scene=scene: log(stamp(f"{scene}: {text}"))) if log else None,
+            )
         else:
             _synthetic_passes(scene, scene_dir, width, height, frames, overwrite, log)
         if log:
-            log(stamp(f"scene {n}/{len(scenes)} {scene}: post-process {', '.join(DEMO_METHODS)} "
-                      f"(reference every {reference_every} frame(s))"))
+            log(
+                stamp(
+                    f"scene {n}/{len(scenes)} {scene}: post-process {', '.join(DEMO_METHODS)} "
+                    f"(reference every {reference_every} frame(s))"
+                )
+            )
 
         def progress(text: str, scene=scene) -> None:
             if " as_ccv:" in text:  # one line per frame, with elapsed and ETA
                 log(stamp(f"{scene}: {text}"))
 
-        rows = post_process(passes, scene_dir, DEMO_METHODS, params, reference=True,
-                            overwrite=True, log=progress if log else None,
-                            reference_every=reference_every)
+        rows = post_process(
+            passes,
+            scene_dir,
+            DEMO_METHODS,
+            params,
+            reference=True,
+            overwrite=True,
+            log=progress if log else None,
+            reference_every=reference_every,
+        )
         summary[scene] = summarize(rows)
         if log:
             s = summary[scene]
-            log(stamp(f"{scene}: " + ", ".join(
-                f"{m} {s[m]['spp']:.1f} spp / {s[m]['psnr_db']:.1f} dB" for m in DEMO_METHODS)))
+            log(
+                stamp(
+                    f"{scene}: "
+                    + ", ".join(
+                        f"{m} {s[m]['spp']:.1f} spp / {s[m]['psnr_db']:.1f} dB"
+                        for m in DEMO_METHODS
+                    )
+                )
+            )
     # JSON has no NaN: a mean without any frame (no reference) is null.
-    plain = {sc: {m: {k: (None if isinstance(v, float) and math.isnan(v) else v)
-                      for k, v in fields.items()} for m, fields in methods.items()}
-             for sc, methods in summary.items()}
+    plain = {
+        sc: {
+            m: {
+                k: (None if isinstance(v, float) and math.isnan(v) else v)
+                for k, v in fields.items()
+            }
+            for m, fields in methods.items()
+        }
+        for sc, methods in summary.items()
+    }
     write_text_atomic(out / "summary.json", json.dumps(plain, indent=2))
     for scene in summary:
         make_plots(out, scene, [1, frames], params.beta_max)
     plots.plot_pareto(summary, out / "pareto.png")
     if source == "blender":
-        what = (f"{engine.title()} passes of the demo_blend scenes ({samples} samples per pixel"
-                + (", fixed seed), " if engine == "CYCLES" else "), "))
+        what = f"{engine.title()} passes of the demo_blend scenes ({samples} samples per pixel" + (
+            ", fixed seed), " if engine == "CYCLES" else "), "
+        )
     else:
         what = "Synthetic passes (core.synthetic), "
     header = [
@@ -384,8 +511,11 @@ def run_demo(
         f"fixed N={params.fixed_spp}, separable: pre-integrated kernel, 17 taps).",
         f"PSNR: luminance over SSS pixels against the {params.reference_spp}-spp reference, "
         "computed on every "
-        + ("frame" if reference_every == 1 else
-           f"{_ordinal(reference_every)} frame (frames 1, {1 + reference_every}, …)")
+        + (
+            "frame"
+            if reference_every == 1
+            else f"{_ordinal(reference_every)} frame (frames 1, {1 + reference_every}, …)"
+        )
         + ", display-referred.",
         "pass ms: the NumPy sampling step on this machine, 3rd-order median over frames.",
     ]

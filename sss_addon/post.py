@@ -54,7 +54,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.exr import OutputError, PassError, list_frames, read_frame, read_sidecar, write_result
+from ..core.exr import (
+    OutputError,
+    PassError,
+    list_frames,
+    make_folder,
+    read_frame,
+    read_sidecar,
+    write_result,
+)
 from ..core.history import History
 from ..core.metrics import psnr
 from ..core.params import SSSParams
@@ -265,8 +273,11 @@ def _resume(run: _MethodRun, numbers: list[int], signature: dict) -> None:
     state, history = load_checkpoint(run.checkpoint)
     name = os.fspath(run.checkpoint)
     if state.get("method") != run.name or state.get("signature") != signature:
-        what = ("method " + str(state.get("method")) if state.get("method") != run.name
-                else _signature_difference(state.get("signature") or {}, signature))
+        what = (
+            "method " + str(state.get("method"))
+            if state.get("method") != run.name
+            else _signature_difference(state.get("signature") or {}, signature)
+        )
         raise CheckpointError(
             f"{name}: written by a different run ({what}); resume with the same "
             "passes, methods and parameters, or pass --overwrite to start over"
@@ -287,22 +298,6 @@ def _resume(run: _MethodRun, numbers: list[int], signature: dict) -> None:
     run.done = done
     run.rows = list(state.get("rows", []))
     run.resumed = True
-
-
-def make_output_folder(folder: Path) -> None:
-    """Create ``folder`` (and parents) or raise OutputError naming the culprit."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError) as exc:
-        # Some part of the path is a file: name it rather than "File exists".
-        for ancestor in (folder, *folder.parents):
-            if ancestor.exists():
-                if not ancestor.is_dir():
-                    raise OutputError(ancestor, "not a folder") from exc
-                break
-        raise OutputError(folder, exc) from exc
-    except OSError as exc:
-        raise OutputError(folder, exc) from exc
 
 
 @contextlib.contextmanager
@@ -416,16 +411,21 @@ def post_process(
     """
     if overwrite and resume:
         raise CheckpointError("--resume and --overwrite exclude each other; choose one")
-    if isinstance(reference_every, bool) or not isinstance(reference_every, int) \
-            or reference_every < 1:
+    if (
+        isinstance(reference_every, bool)
+        or not isinstance(reference_every, int)
+        or reference_every < 1
+    ):
         raise ValueError(f"reference_every must be an integer >= 1, got {reference_every!r}")
     passes = Path(passes)
     out = Path(out)
     frames = list_frames(passes)
     missing = check_sequence(passes, frames, allow_gaps)
     if missing and warn:
-        warn(f"warning: {os.fspath(passes)}: frames {format_frame_ranges(missing)} are missing; "
-             "the history is carried across the gaps as if the frames were consecutive")
+        warn(
+            f"warning: {os.fspath(passes)}: frames {format_frame_ranges(missing)} are missing; "
+            "the history is carried across the gaps as if the frames were consecutive"
+        )
     numbers = [n for n, _ in frames]
     names = list(dict.fromkeys(methods))
     need_ref = reference or "reference" in names
@@ -439,8 +439,10 @@ def post_process(
     options = dict(processor_options or {})
     signature["params"].update({k: repr(v) for k, v in sorted(options.items())})
 
-    runs = {name: _MethodRun(name, SequenceProcessor(name, params, **options), out / name)
-            for name in order}
+    runs = {
+        name: _MethodRun(name, SequenceProcessor(name, params, **options), out / name)
+        for name in order
+    }
     for run in runs.values():
         existing = [run.folder / p.name for _, p in frames if (run.folder / p.name).exists()]
         has_checkpoint = run.checkpoint.exists()
@@ -455,8 +457,11 @@ def post_process(
             )
         elif existing or has_checkpoint:
             first = existing[0] if existing else run.checkpoint
-            hint = ("pass --resume to continue the interrupted run or --overwrite to start over"
-                    if has_checkpoint else "pass --overwrite to replace them")
+            hint = (
+                "pass --resume to continue the interrupted run or --overwrite to start over"
+                if has_checkpoint
+                else "pass --overwrite to replace them"
+            )
             raise FileExistsError(
                 f"{os.fspath(first)} already exists ({len(existing)} result(s) in "
                 f"{os.fspath(run.folder)}); {hint}"
@@ -473,14 +478,17 @@ def post_process(
     # written after it as this run's (for resume) and fails early if the
     # output folder cannot be written.
     for folder in (out, *(run.folder for run in runs.values())):
-        make_output_folder(folder)
+        make_folder(folder)
         _remove_stale_temporaries(folder)
     if overwrite:
         # Results this run will not write (frames no longer in the sequence, the
         # reference's skipped frames) must not pass for this run's.
         for run in runs.values():
-            planned = {p.name for i, (_, p) in enumerate(frames)
-                       if run.name != "reference" or i % reference_every == 0}
+            planned = {
+                p.name
+                for i, (_, p) in enumerate(frames)
+                if run.name != "reference" or i % reference_every == 0
+            }
             for old in run.folder.glob("*.exr"):
                 if old.stem.isdigit() and old.name not in planned:
                     old.unlink()
@@ -501,8 +509,9 @@ def post_process(
 
     start = time.perf_counter()
     processed = 0
-    todo_frames = sum(1 for i in range(len(numbers))
-                      if any(i >= len(run.done) for run in runs.values()))
+    todo_frames = sum(
+        1 for i in range(len(numbers)) if any(i >= len(run.done) for run in runs.values())
+    )
     shape = None
     for i, (number, path) in enumerate(frames):
         todo = [run for run in runs.values() if i >= len(run.done)]
@@ -519,8 +528,10 @@ def post_process(
                 "sequence must have the same size"
             )
         if frame.repaired and warn:
-            warn(f"warning: {os.fspath(path)}: repaired {frame.repaired} non-finite or negative "
-                 "pass value(s) (colours -> 0, depth -> background, motion -> 0)")
+            warn(
+                f"warning: {os.fspath(path)}: repaired {frame.repaired} non-finite or negative "
+                "pass value(s) (colours -> 0, depth -> background, motion -> 0)"
+            )
         processed += 1
         ref = None
         if need_ref and i % reference_every == 0:
@@ -533,21 +544,34 @@ def post_process(
                 save_checkpoint(run, signature)
                 continue
             result = ref if run.name == "reference" else run.processor.process(frame)
-            value = psnr(result.composite, ref.composite, result.mask, params.exposure) if ref else None
-            write_result(run.folder / path.name, result, overwrite=overwrite or run.resumed,
-                         metadata={"source": path.name})
-            run.rows.append({
-                "frame": number, "method": run.name, "spp": _fmt(result.spp),
-                "pass_ms": _fmt(result.pass_ms, 3), "psnr_db": _fmt(value, 3),
-            })
+            value = (
+                psnr(result.composite, ref.composite, result.mask, params.exposure) if ref else None
+            )
+            write_result(
+                run.folder / path.name,
+                result,
+                overwrite=overwrite or run.resumed,
+                metadata={"source": path.name},
+            )
+            run.rows.append(
+                {
+                    "frame": number,
+                    "method": run.name,
+                    "spp": _fmt(result.spp),
+                    "pass_ms": _fmt(result.pass_ms, 3),
+                    "psnr_db": _fmt(value, 3),
+                }
+            )
             run.done.append(number)
             save_checkpoint(run, signature)
             if log:
                 elapsed = time.perf_counter() - start
                 eta = elapsed / processed * (todo_frames - processed)
-                log(f"frame {i + 1}/{len(frames)} ({number}) {run.name:>9}: spp {result.spp:7.2f}  "
+                log(
+                    f"frame {i + 1}/{len(frames)} ({number}) {run.name:>9}: spp {result.spp:7.2f}  "
                     f"pass {result.pass_ms:8.2f} ms  psnr {_fmt(value, 2) or '-':>6} dB  "
-                    f"[elapsed {elapsed:5.1f} s, eta {eta:5.1f} s]")
+                    f"[elapsed {elapsed:5.1f} s, eta {eta:5.1f} s]"
+                )
         write_text_atomic(metrics_path, format_metrics(merged()))
     rows = merged()
     if not processed:

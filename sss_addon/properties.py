@@ -490,8 +490,7 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
         return params
     from ..core import quality as calibrated
 
-    target = (f"{settings.quality_psnr:g}dB" if quality == "PSNR"
-              else f"{settings.quality_spp:g}spp")
+    target = f"{settings.quality_psnr:g}dB" if quality == "PSNR" else f"{settings.quality_spp:g}spp"
     try:
         return calibrated.apply(params, target, method)[0]
     except (OSError, ValueError) as exc:  # a missing or unreadable calibration file

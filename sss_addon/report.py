@@ -80,8 +80,14 @@ def _display(rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     return srgb_encode(np.asarray(rgb) * exposure)
 
 
-def plot_strip(scene_dir: Path, method: str, frames: list[int], path: Path,
-               beta_max: int = 64, exposure: float = 1.0) -> Path:
+def plot_strip(
+    scene_dir: Path,
+    method: str,
+    frames: list[int],
+    path: Path,
+    beta_max: int = 64,
+    exposure: float = 1.0,
+) -> Path:
     """Composite (top) and sample-count map (bottom) for a few frames."""
     plt = _pyplot()
     n = len(frames)
@@ -105,16 +111,18 @@ def plot_strip(scene_dir: Path, method: str, frames: list[int], path: Path,
     return path
 
 
-def plot_preview(scene_dir: Path, method: str, number: int, path: Path,
-                 beta_max: int = 64, exposure: float = 1.0) -> Path:
+def plot_preview(
+    scene_dir: Path, method: str, number: int, path: Path, beta_max: int = 64, exposure: float = 1.0
+) -> Path:
     """One frame: composite and sample-count map side by side."""
     plt = _pyplot()
     res = read_result(scene_dir / method / f"{number:04d}.exr")
     fig, axes = plt.subplots(1, 2, figsize=(8, 2.6))
     axes[0].imshow(_display(res["Composite"], exposure))
     axes[0].set_title(f"{method} composite, frame {number}", fontsize=9)
-    im = axes[1].imshow(np.where(res["Mask"] > 0, res["SampleCount"], np.nan),
-                        vmin=0, vmax=beta_max, cmap="viridis")
+    im = axes[1].imshow(
+        np.where(res["Mask"] > 0, res["SampleCount"], np.nan), vmin=0, vmax=beta_max, cmap="viridis"
+    )
     axes[1].set_title("samples per pixel", fontsize=9)
     for ax in axes:
         ax.set_xticks([])
@@ -136,8 +144,13 @@ def plot_pareto(summary: dict, path: Path) -> Path:
             v = summary[scene].get(method)
             if v is None or not np.isfinite(v["psnr_db"]):
                 continue
-            ax.scatter(v["pass_ms"], v["psnr_db"], marker=markers[j % len(markers)],
-                       color=f"C{i}", label=f"{scene}: {method}")
+            ax.scatter(
+                v["pass_ms"],
+                v["psnr_db"],
+                marker=markers[j % len(markers)],
+                color=f"C{i}",
+                label=f"{scene}: {method}",
+            )
     ax.set_xscale("log")
     ax.set_xlabel("mean sampling pass (ms, log)")
     ax.set_ylabel("mean PSNR vs reference (dB)")

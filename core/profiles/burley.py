@@ -116,7 +116,9 @@ def inverse_cdf(xi: np.ndarray, d: np.ndarray) -> np.ndarray:
 def radius_from_tail_fast(t: np.ndarray, d: np.ndarray, c: float = FAST_C) -> np.ndarray:
     """Fast approximation ``r ≈ d((2 − c)ξ − 2)·ln(1 − ξ)`` with ``ξ = 1 − t``."""
     t = np.clip(np.asarray(t, dtype=np.float64), 1e-300, 1.0)
-    return np.maximum(np.asarray(d, dtype=np.float64) * ((2.0 - c) * (1.0 - t) - 2.0) * np.log(t), 0.0)
+    return np.maximum(
+        np.asarray(d, dtype=np.float64) * ((2.0 - c) * (1.0 - t) - 2.0) * np.log(t), 0.0
+    )
 
 
 def fast_inverse_error(c: float = FAST_C, n: int = 100_001) -> dict[str, float]:

@@ -35,8 +35,10 @@ def pcg3d(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, ...]
     [2611992518, 2833812075, 1058359340]
     """
     shape = np.broadcast_shapes(np.shape(x), np.shape(y), np.shape(z))
-    vx, vy, vz = (np.broadcast_to(np.asarray(a).astype(np.int64) & 0xFFFFFFFF, shape).astype(_U32)
-                  for a in (x, y, z))
+    vx, vy, vz = (
+        np.broadcast_to(np.asarray(a).astype(np.int64) & 0xFFFFFFFF, shape).astype(_U32)
+        for a in (x, y, z)
+    )
     with np.errstate(over="ignore"):
         vx = vx * _U32(1664525) + _U32(1013904223)
         vy = vy * _U32(1664525) + _U32(1013904223)
@@ -116,9 +118,7 @@ def pixel_offsets(
     return hx * _INV_2_32, hy * _INV_2_32
 
 
-def r2_points(
-    sx: np.ndarray, sy: np.ndarray, k: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def r2_points(sx: np.ndarray, sy: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points ``frac(s + k·(1/φ₂, 1/φ₂²))`` of the shifted R2 sequence.
 
     Parameters

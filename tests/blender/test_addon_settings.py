@@ -217,9 +217,13 @@ def test_build_demo_is_deterministic(fresh):
         scene.frame_set(frame)
         t = (frame - 1) / 60
         peak = scenes.FLASH_PEAK
-        assert light.energy == pytest.approx(peak / 2 * (math.sin(2 * math.pi * 5 * t) + 1), abs=1e-5)
+        assert light.energy == pytest.approx(
+            peak / 2 * (math.sin(2 * math.pi * 5 * t) + 1), abs=1e-5
+        )
     assert {m.name for m in materials.participating(scene)} == {
-        "cvsss Skin", "cvsss Marble", "cvsss Apple"
+        "cvsss Skin",
+        "cvsss Marble",
+        "cvsss Apple",
     }
     assert scenes.names()[0] == "flash"
     with pytest.raises(ValueError, match="demo must be one of"):

@@ -47,8 +47,7 @@ def test_regular_lamp_switches_every_3_s_and_candles_flicker(fresh):
 
 def _boid_positions(scene, frame):
     scene.frame_set(frame)
-    emitter = bpy.data.objects["boids Emitter"].evaluated_get(
-        bpy.context.evaluated_depsgraph_get())
+    emitter = bpy.data.objects["boids Emitter"].evaluated_get(bpy.context.evaluated_depsgraph_get())
     particles = emitter.particle_systems[0].particles
     co = np.empty(len(particles) * 3, np.float32)
     particles.foreach_get("location", co)
@@ -74,8 +73,21 @@ def test_boids_are_baked_flock_and_replay_identically(fresh):
 
 def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     out = tmp_path / "demo"
-    args = ["demo", "--out", str(out), "--scenes", "regular", "--frames", "3", "--samples", "2",
-            "--reference-every", "2", "--reference-spp", "64"]
+    args = [
+        "demo",
+        "--out",
+        str(out),
+        "--scenes",
+        "regular",
+        "--frames",
+        "3",
+        "--samples",
+        "2",
+        "--reference-every",
+        "2",
+        "--reference-spp",
+        "64",
+    ]
     assert cli.main([*args, "--res", "32x18"]) == 0
     scene_dir = out / "regular"
     passes = sorted(p.name for p in (scene_dir / "passes").glob("*.exr"))
@@ -86,8 +98,7 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     stamp = json.loads((scene_dir / "demo.json").read_text())
     assert stamp["width"] == 32 and stamp["samples"] == 2 and stamp["engine"] == "CYCLES"
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["regular"]) == {"as", "as_ocv", "as_ccv", "fixed", "separable",
-                                        "reference"}
+    assert set(summary["regular"]) == {"as", "as_ocv", "as_ccv", "fixed", "separable", "reference"}
     rows = list(csv.DictReader(open(scene_dir / "metrics.csv")))
     assert [int(r["frame"]) for r in rows if r["method"] == "reference"] == [1, 3]
     assert "regular: per frame" in (out / "report.md").read_text()

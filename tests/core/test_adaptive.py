@@ -20,12 +20,19 @@ def test_counts_clamped_and_zero_below_eps_u():
 
 def test_no_history_uses_target_and_n_init():
     p = SSSParams(n_init=12)
-    m = adaptive.sample_counts(np.array([5.0]), np.array([64.0]), np.array([False]),
-                               np.array([0.5]), p)
+    m = adaptive.sample_counts(
+        np.array([5.0]), np.array([64.0]), np.array([False]), np.array([0.5]), p
+    )
     assert m[0] == 12
     mu, var, mbar, valid = adaptive.update_history(
-        np.array([9.0]), np.array([9.0]), np.array([9.0]), np.array([False]),
-        np.array([0.25]), np.array([12]), p)
+        np.array([9.0]),
+        np.array([9.0]),
+        np.array([9.0]),
+        np.array([False]),
+        np.array([0.25]),
+        np.array([12]),
+        p,
+    )
     assert mu[0] == 0.25 and var[0] == pytest.approx(p.target_variance)
     assert mbar[0] == pytest.approx(12) and valid[0]
 
@@ -33,8 +40,14 @@ def test_no_history_uses_target_and_n_init():
 def test_update_equations():
     p = SSSParams(eta=0.25)
     mu, var, mbar, valid = adaptive.update_history(
-        np.array([1.0]), np.array([0.5]), np.array([10.0]), np.array([True]),
-        np.array([3.0]), np.array([0]), p)
+        np.array([1.0]),
+        np.array([0.5]),
+        np.array([10.0]),
+        np.array([True]),
+        np.array([3.0]),
+        np.array([0]),
+        p,
+    )
     assert mu[0] == pytest.approx(0.75 * 1 + 0.25 * 3)
     assert var[0] == pytest.approx(0.75 * 0.5 + 0.25 * 0.75 * 4.0)
     assert mbar[0] == pytest.approx(7.5)

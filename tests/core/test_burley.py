@@ -19,7 +19,9 @@ def test_pdf_integrates_to_one(d):
 
 def test_cdf_matches_pdf_integral():
     r = np.linspace(0, 10, 100_001)
-    num = np.concatenate([[0], np.cumsum(0.5 * (burley.pdf(r[1:], 1.0) + burley.pdf(r[:-1], 1.0)) * np.diff(r))])
+    num = np.concatenate(
+        [[0], np.cumsum(0.5 * (burley.pdf(r[1:], 1.0) + burley.pdf(r[:-1], 1.0)) * np.diff(r))]
+    )
     assert np.max(np.abs(num - burley.cdf(r, 1.0))) < 1e-8
 
 
@@ -53,7 +55,9 @@ def test_sampler_chi_square():
     region = prof.region(np.array([r0]), mat)
     u = rng.random(n)
     ch = np.zeros(n, np.int64)
-    r = prof.sample(u, np.full(n, region.lo[0, 0]), np.full(n, region.hi[0, 0]), np.ones(n, np.int32), ch)
+    r = prof.sample(
+        u, np.full(n, region.lo[0, 0]), np.full(n, region.hi[0, 0]), np.ones(n, np.int32), ch
+    )
     rmax = 16 * 0.5
     assert r.min() >= r0 - 1e-12 and r.max() <= rmax + 1e-12
     edges = np.concatenate([np.linspace(r0, 3.0, 40), np.linspace(3.0, rmax, 11)[1:]])

@@ -48,6 +48,7 @@ def test_coefficient_reduces_to_one_and_is_bounded():
     a0 = cv.cv_coefficient(np.array([1.0]), np.array([0.0]), np.ones(1), np.zeros(1), 0.0)
     assert np.isfinite(a0[0]) and cv.residual(np.ones(1), np.zeros(1), a0)[0] == 1.0
     # NaN/inf history never leaks.
-    a = cv.cv_coefficient(np.array([np.nan, np.inf]), np.array([np.inf, np.nan]),
-                          np.ones(2), np.ones(2), 1e-6)
+    a = cv.cv_coefficient(
+        np.array([np.nan, np.inf]), np.array([np.inf, np.nan]), np.ones(2), np.ones(2), 1e-6
+    )
     assert np.all(np.isfinite(a)) and np.all((a >= 0) & (a <= 2))

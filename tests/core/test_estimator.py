@@ -17,8 +17,17 @@ def run(frame, counts, seed=0, slope=2.0):
     prof = BurleyProfile(frame.d_table())
     geom = prepare(frame.depth, frame.material, frame.camera, prof)
     m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
-    est = estimate_distant(geom, frame.lighting, frame.depth, frame.material, prof, m,
-                           frame=frame.number, seed=seed, depth_slope=slope)
+    est = estimate_distant(
+        geom,
+        frame.lighting,
+        frame.depth,
+        frame.material,
+        prof,
+        m,
+        frame=frame.number,
+        seed=seed,
+        depth_slope=slope,
+    )
     b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     return geom, est, (1 - geom.gamma) * b + est.distant
 
@@ -29,8 +38,12 @@ def test_constant_lighting_is_exact_for_any_count(m):
     frame = flat_plane(d=CHROMATIC, lighting=b)
     geom, est, shaded = run(frame, m)
     assert geom.size == 48 * 64
-    assert np.array_equal(shaded, np.broadcast_to(b.reshape(-1, 3)[0], shaded.shape).astype(np.float64)) \
+    assert (
+        np.array_equal(
+            shaded, np.broadcast_to(b.reshape(-1, 3)[0], shaded.shape).astype(np.float64)
+        )
         or np.max(np.abs(shaded - b.reshape(-1, 3)[0])) <= 1e-12 * 1.9
+    )
     assert est.samples == m * geom.size
 
 
@@ -45,8 +58,9 @@ def test_zero_counts_reduce_to_diffuse():
 
 def _shadow_edge(w=64, h=48):
     x = np.arange(w)[None, :, None]
-    return np.broadcast_to(np.where(x < w // 2, 0.05, 1.0), (h, w, 3)).astype(np.float32) * \
-        np.array([1.0, 0.8, 0.6], np.float32)
+    return np.broadcast_to(np.where(x < w // 2, 0.05, 1.0), (h, w, 3)).astype(
+        np.float32
+    ) * np.array([1.0, 0.8, 0.6], np.float32)
 
 
 def test_unbiased_on_flat_plane():
@@ -113,8 +127,9 @@ def test_chunking_does_not_change_result():
     m = np.full(geom.size, 13)
     kw = dict(frame=2, seed=1, depth_slope=2.0)
     a = estimate_distant(geom, frame.lighting, frame.depth, frame.material, prof, m, **kw)
-    b = estimate_distant(geom, frame.lighting, frame.depth, frame.material, prof, m,
-                         chunk_samples=1024, **kw)
+    b = estimate_distant(
+        geom, frame.lighting, frame.depth, frame.material, prof, m, chunk_samples=1024, **kw
+    )
     assert a.samples == b.samples
     assert np.allclose(a.distant, b.distant, rtol=1e-12, atol=1e-12)
 
@@ -134,8 +149,21 @@ def test_bad_values_never_leak(bad):
     frame.lighting[10:14, 10:30] = bad
     frame.lighting[20, :] = bad
     frame.depth[5:8, 20:24] = bad
-    frame = type(frame)(**{k: getattr(frame, k) for k in (
-        "number", "lighting", "albedo", "combined", "depth", "material", "camera", "materials")})
+    frame = type(frame)(
+        **{
+            k: getattr(frame, k)
+            for k in (
+                "number",
+                "lighting",
+                "albedo",
+                "combined",
+                "depth",
+                "material",
+                "camera",
+                "materials",
+            )
+        }
+    )
     p = SSSParams()
     for method in ("fixed", "as", "as_ocv", "as_ccv"):
         proc = SequenceProcessor(method, p)
@@ -145,7 +173,6 @@ def test_bad_values_never_leak(bad):
                 assert np.all(np.isfinite(arr))
             c = res.counts[res.mask]
             assert np.all((c == 0) | ((c >= p.beta_min) & (c <= max(p.beta_max, p.fixed_spp))))
-
 
 
 @pytest.mark.parametrize("d", [1e20, 1e30])

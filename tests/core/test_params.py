@@ -34,8 +34,13 @@ def test_defaults_are_the_papers():
     ],
 )
 def test_invalid_values_name_the_argument(name, value, fragment):
-    with pytest.raises(ParameterError, match=fragment.replace("(", r"\(").replace(")", r"\)")
-                       .replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(
+        ParameterError,
+        match=fragment.replace("(", r"\(")
+        .replace(")", r"\)")
+        .replace("[", r"\[")
+        .replace("]", r"\]"),
+    ):
         SSSParams(**{name: value})
 
 
@@ -47,10 +52,21 @@ def test_beta_order_checked():
 @pytest.mark.parametrize(
     "changes",
     [
-        {"eta": 1e-6}, {"eta": 1.0}, {"eta_cv": 1e-9}, {"eta_cv": 1.0},
-        {"target_variance": 1e-12}, {"target_variance": 1e6}, {"kappa": 0.0}, {"kappa": 1.0},
-        {"eps_u": 0.0}, {"eps_u": 1.0}, {"eps_alpha": 0.0}, {"eps_alpha": 1.0},
-        {"beta_min": 16, "beta_max": 16}, {"beta_min": 1, "beta_max": 1}, {"beta_max": 1024},
+        {"eta": 1e-6},
+        {"eta": 1.0},
+        {"eta_cv": 1e-9},
+        {"eta_cv": 1.0},
+        {"target_variance": 1e-12},
+        {"target_variance": 1e6},
+        {"kappa": 0.0},
+        {"kappa": 1.0},
+        {"eps_u": 0.0},
+        {"eps_u": 1.0},
+        {"eps_alpha": 0.0},
+        {"eps_alpha": 1.0},
+        {"beta_min": 16, "beta_max": 16},
+        {"beta_min": 1, "beta_max": 1},
+        {"beta_max": 1024},
     ],
 )
 def test_extremes_are_accepted(changes):

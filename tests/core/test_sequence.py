@@ -7,7 +7,10 @@ def test_pcg3d_reference_value():
     # Value of the reference GLSL pcg3d (Jarzynski & Olano 2020) for (0, 0, 0),
     # computed with Python integers modulo 2**32.
     assert [int(v) for v in pcg3d(np.uint32(0), np.uint32(0), np.uint32(0))] == [
-        2611992518, 2833812075, 1058359340]
+        2611992518,
+        2833812075,
+        1058359340,
+    ]
 
 
 def test_offsets_deterministic_and_decorrelated():

@@ -22,8 +22,22 @@ def passes(tmp_path_factory):
 
 def test_post_writes_results_and_metrics(passes, tmp_path):
     out = tmp_path / "out"
-    code = cli.main(["post", str(passes), "--out", str(out), "--method", "as_ccv,fixed",
-                     "--reference", "--reference-spp", "128", "--fixed-spp", "16", "--quiet"])
+    code = cli.main(
+        [
+            "post",
+            str(passes),
+            "--out",
+            str(out),
+            "--method",
+            "as_ccv,fixed",
+            "--reference",
+            "--reference-spp",
+            "128",
+            "--fixed-spp",
+            "16",
+            "--quiet",
+        ]
+    )
     assert code == 0
     rows = list(csv.DictReader(open(out / "metrics.csv")))
     assert [r["method"] for r in rows[:3]] == ["reference", "as_ccv", "fixed"]
@@ -41,14 +55,32 @@ def test_post_writes_results_and_metrics(passes, tmp_path):
     assert np.all(np.isfinite(res["Composite"]))
     # Rerun refuses to overwrite without --overwrite, and succeeds with it.
     assert cli.main(["post", str(passes), "--out", str(out), "--method", "fixed", "--quiet"]) == 2
-    assert cli.main(["post", str(passes), "--out", str(out), "--method", "fixed", "--quiet",
-                     "--overwrite"]) == 0
+    assert (
+        cli.main(
+            ["post", str(passes), "--out", str(out), "--method", "fixed", "--quiet", "--overwrite"]
+        )
+        == 0
+    )
 
 
 def test_post_is_deterministic(passes, tmp_path):
     for name in ("a", "b"):
-        assert cli.main(["post", str(passes), "--out", str(tmp_path / name), "--method",
-                         "as_ocv", "--seed", "5", "--quiet"]) == 0
+        assert (
+            cli.main(
+                [
+                    "post",
+                    str(passes),
+                    "--out",
+                    str(tmp_path / name),
+                    "--method",
+                    "as_ocv",
+                    "--seed",
+                    "5",
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
     a = read_result(tmp_path / "a" / "as_ocv" / "0003.exr")
     b = read_result(tmp_path / "b" / "as_ocv" / "0003.exr")
     for layer in ("Composite", "SampleCount", "Alpha"):
@@ -66,9 +98,19 @@ def test_post_is_deterministic(passes, tmp_path):
 )
 def test_bad_parameters_exit_2_with_one_line(passes, tmp_path, args, fragment):
     proc = subprocess.run(
-        [sys.executable, "-m", "cvsss.sss_addon.cli", "post", str(passes), "--out",
-         str(tmp_path / "o"), *args],
-        capture_output=True, text=True, check=False,
+        [
+            sys.executable,
+            "-m",
+            "cvsss.sss_addon.cli",
+            "post",
+            str(passes),
+            "--out",
+            str(tmp_path / "o"),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert proc.returncode == 2
     assert fragment in proc.stderr
@@ -90,27 +132,36 @@ def test_missing_directory_and_corrupt_file(tmp_path, capsys):
 def test_reference_every_k_frames_leaves_other_methods_unchanged(passes, tmp_path):
     common = ["--method", "as_ccv", "--reference", "--reference-spp", "64", "--quiet"]
     assert cli.main(["post", str(passes), "--out", str(tmp_path / "all"), *common]) == 0
-    assert cli.main(["post", str(passes), "--out", str(tmp_path / "k3"), *common,
-                     "--reference-every", "3"]) == 0
+    assert (
+        cli.main(
+            ["post", str(passes), "--out", str(tmp_path / "k3"), *common, "--reference-every", "3"]
+        )
+        == 0
+    )
     every = list(csv.DictReader(open(tmp_path / "all" / "metrics.csv")))
     some = list(csv.DictReader(open(tmp_path / "k3" / "metrics.csv")))
     # The reference on frames 1 and 4 only (the 1st and the (k+1)-th); PSNR only there.
     assert [int(r["frame"]) for r in some if r["method"] == "reference"] == [1, 4]
     assert sorted(p.name for p in (tmp_path / "k3" / "reference").glob("*.exr")) == [
-        "0001.exr", "0004.exr"]
+        "0001.exr",
+        "0004.exr",
+    ]
     ccv_all = {int(r["frame"]): r for r in every if r["method"] == "as_ccv"}
     ccv_some = {int(r["frame"]): r for r in some if r["method"] == "as_ccv"}
     assert sorted(ccv_some) == [1, 2, 3, 4]
     for n, r in ccv_some.items():
         assert r["spp"] == ccv_all[n]["spp"]  # the reference never feeds the history
         assert (r["psnr_db"] == ccv_all[n]["psnr_db"]) if n in (1, 4) else r["psnr_db"] == ""
-    np.testing.assert_array_equal(read_result(tmp_path / "k3" / "as_ccv" / "0003.exr")["SSS"],
-                                  read_result(tmp_path / "all" / "as_ccv" / "0003.exr")["SSS"])
+    np.testing.assert_array_equal(
+        read_result(tmp_path / "k3" / "as_ccv" / "0003.exr")["SSS"],
+        read_result(tmp_path / "all" / "as_ccv" / "0003.exr")["SSS"],
+    )
 
 
 def test_reference_every_below_one_is_refused(passes, tmp_path, capsys):
-    code = cli.main(["post", str(passes), "--out", str(tmp_path / "o"), "--reference",
-                     "--reference-every", "0"])
+    code = cli.main(
+        ["post", str(passes), "--out", str(tmp_path / "o"), "--reference", "--reference-every", "0"]
+    )
     assert code == 2
     assert "--reference-every must be >= 1, got 0" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
@@ -118,8 +169,18 @@ def test_reference_every_below_one_is_refused(passes, tmp_path, capsys):
 
 def test_overwrite_removes_results_the_new_run_does_not_make(passes, tmp_path):
     out = tmp_path / "out"
-    common = ["post", str(passes), "--out", str(out), "--method", "as", "--reference",
-              "--reference-spp", "32", "--quiet"]
+    common = [
+        "post",
+        str(passes),
+        "--out",
+        str(out),
+        "--method",
+        "as",
+        "--reference",
+        "--reference-spp",
+        "32",
+        "--quiet",
+    ]
     assert cli.main(common) == 0
     assert len(list((out / "reference").glob("*.exr"))) == 4
     assert cli.main([*common, "--overwrite", "--reference-every", "2"]) == 0

@@ -14,8 +14,23 @@ from cvsss.sss_addon import cli, demo
 @pytest.fixture(scope="module")
 def small_demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    code = cli.main(["demo", "--source", "synthetic", "--out", str(out), "--res", "40x24",
-                     "--frames", "6", "--reference-every", "2", "--reference-spp", "128"])
+    code = cli.main(
+        [
+            "demo",
+            "--source",
+            "synthetic",
+            "--out",
+            str(out),
+            "--res",
+            "40x24",
+            "--frames",
+            "6",
+            "--reference-every",
+            "2",
+            "--reference-spp",
+            "128",
+        ]
+    )
     assert code == 0
     return out
 
@@ -53,8 +68,9 @@ def test_report_lists_table_targets_and_plots(small_demo):
 
 
 def test_bad_scene_is_one_clear_error(tmp_path, capsys):
-    code = cli.main(["demo", "--source", "synthetic", "--scenes", "boids", "--out",
-                     str(tmp_path / "d")])
+    code = cli.main(
+        ["demo", "--source", "synthetic", "--scenes", "boids", "--out", str(tmp_path / "d")]
+    )
     assert code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --scenes must be a list of flash, regular (--source synthetic)")
@@ -63,8 +79,19 @@ def test_bad_scene_is_one_clear_error(tmp_path, capsys):
 
 def test_pass_cache_follows_the_settings(tmp_path):
     out = tmp_path / "d"
-    base = ["demo", "--source", "synthetic", "--scenes", "flash", "--out", str(out),
-            "--reference-every", "3", "--reference-spp", "32"]
+    base = [
+        "demo",
+        "--source",
+        "synthetic",
+        "--scenes",
+        "flash",
+        "--out",
+        str(out),
+        "--reference-every",
+        "3",
+        "--reference-spp",
+        "32",
+    ]
     assert cli.main([*base, "--res", "24x16", "--frames", "5"]) == 0
     passes = out / "flash" / "passes"
     first = {p.name: p.stat().st_mtime_ns for p in passes.iterdir()}
@@ -77,7 +104,10 @@ def test_pass_cache_follows_the_settings(tmp_path):
     rows = list(csv.DictReader(open(out / "flash" / "metrics.csv")))
     assert {int(r["frame"]) for r in rows} == {1, 2, 3}
     assert sorted(p.name for p in (out / "flash" / "as").glob("*.exr")) == [
-        "0001.exr", "0002.exr", "0003.exr"]
+        "0001.exr",
+        "0002.exr",
+        "0003.exr",
+    ]
     # Passes of unknown origin (no stamp) are not trusted either.
     (out / "flash" / "demo.json").unlink()
     mtime = (passes / "0001.exr").stat().st_mtime_ns
