@@ -524,7 +524,7 @@ def _build_flash(scene, collection, frames: int) -> None:
 
 @demo(
     "regular",
-    "Marble table with skin, marble and three flickering wax candles; " "a lamp switched every 3 s",
+    "Marble table with skin, marble and three flickering wax candles; a lamp switched every 3 s",
 )
 def _build_regular(scene, collection, frames: int) -> None:
     _world(scene, 0.02)

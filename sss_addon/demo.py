@@ -41,7 +41,7 @@ from ..core.metrics import median3
 from ..core.params import SSSParams
 from ..core.synthetic import sequence
 from . import report as plots
-from .post import post_process, write_text_atomic
+from .post import format_clock, post_process, write_text_atomic
 
 #: Methods compared by the demo, in report order.
 DEMO_METHODS = ("as", "as_ocv", "as_ccv", "fixed", "separable", "reference")
@@ -423,7 +423,7 @@ def run_demo(
     start = time.perf_counter()
 
     def stamp(text: str) -> str:
-        return f"[{_clock(time.perf_counter() - start)}] {text}"
+        return f"[{format_clock(time.perf_counter() - start)}] {text}"
 
     for n, scene in enumerate(scenes, 1):
         scene_dir = out / scene
@@ -530,8 +530,3 @@ def _ordinal(k: int) -> str:
     if 10 <= k % 100 <= 20:
         return f"{k}th"
     return f"{k}" + {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
-
-
-def _clock(seconds: float) -> str:
-    minutes, sec = divmod(int(round(seconds)), 60)
-    return f"{minutes}:{sec:02d}"

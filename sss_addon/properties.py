@@ -28,23 +28,12 @@ from bpy.types import PropertyGroup
 
 from ..core.methods import METHODS, enum_items
 from ..core.params import MAX_SPP, PAPER_DEFAULTS, ParameterError, SSSParams
+from ..core.profiles import presets
 
 _DEFAULTS = SSSParams()
 
 #: Measured materials of the separable-SSS supplementary (seeds/004 section G).
-PRESET_NAMES = (
-    "apple",
-    "chicken1",
-    "chicken2",
-    "cream",
-    "ketchup",
-    "marble",
-    "potato",
-    "skimmilk",
-    "skin1",
-    "skin2",
-    "wholemilk",
-)
+PRESET_NAMES = presets.names()
 
 #: Control-variate modes, named as in ``core.methods.Method.cv``.
 CV_MODES = (

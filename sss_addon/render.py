@@ -47,7 +47,7 @@ from .passes import (
     render_view_layer,
     scene_camera,
 )
-from .post import format_metrics, write_text_atomic
+from .post import format_clock, format_metrics, write_text_atomic
 
 __all__ = [
     "Job",
@@ -267,18 +267,11 @@ def iter_passes(job: Job) -> Iterator[Step]:
                 elapsed = time.perf_counter() - began
                 job.log(
                     f"frame {index}/{total} ({frame}) passes {what} [{seconds:.2f} s; "
-                    f"passes elapsed {_clock(elapsed)}, eta {_clock(elapsed / index * (total - index))}]"
+                    f"passes elapsed {format_clock(elapsed)}, eta {format_clock(elapsed / index * (total - index))}]"
                 )
             yield Step(index, total, frame, path, rendered, seconds)
     finally:
         scene.frame_set(frame_before, subframe=subframe_before)
-
-
-def _clock(seconds: float) -> str:
-    """``m:ss`` (or ``h:mm:ss``) of a duration in seconds."""
-    minutes, sec = divmod(int(round(seconds)), 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}:{minutes:02d}:{sec:02d}" if hours else f"{minutes}:{sec:02d}"
 
 
 def reference_due(job: Job, index: int) -> bool:
@@ -368,7 +361,7 @@ def iter_sequence(job: Job) -> Iterator[Step]:
             eta = elapsed / step.index * (step.total - step.index)
             job.log(
                 f"frame {step.index}/{step.total} ({step.frame}) post-process [{post:.2f} s; "
-                f"elapsed {_clock(elapsed)}, eta {_clock(eta)}]"
+                f"elapsed {format_clock(elapsed)}, eta {format_clock(eta)}]"
             )
         yield step
 
