@@ -7,9 +7,9 @@ References: Xie & Olano 2021 (P), Xie's defense slides (D), Jimenez et al.
 
 from .camera import Camera
 from .frame import Frame, MaterialSpec
+from .mc.processor import FrameResult, SequenceProcessor
 from .methods import METHODS, Method, get_method
 from .params import ParameterError, SSSParams
-from .pipeline import FrameResult, SequenceProcessor
 
 __all__ = [
     "METHODS",

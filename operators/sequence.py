@@ -12,10 +12,10 @@ import traceback
 import bpy
 from bpy.types import Operator
 
-from ..core.exr import OutputError, PassError
+from ..core.io.exr import OutputError, PassError
 from ..core.params import ParameterError
-from ..sss_addon import render
-from ..sss_addon.passes import RenderError
+from ..sss_addon.blender import render
+from ..sss_addon.blender.passes import RenderError
 
 #: Problems the user can fix: reported without a traceback.
 USER_ERRORS = (RenderError, ParameterError, PassError, OutputError, FileExistsError)

@@ -8,7 +8,7 @@ by :func:`register`.
 
 def _modules():
     from .. import operators
-    from . import panels, properties
+    from .blender import panels, properties
 
     # Registration order: properties before the operators and panels that use them.
     return (properties, operators, panels)

@@ -308,7 +308,7 @@ def frame_profile(frame, params, choice: ProfileChoice | None = None) -> Profile
 
 
 class ProfileFactory:
-    """``profile_factory`` of :class:`~cvsss.core.pipeline.SequenceProcessor` for a choice.
+    """``profile_factory`` of :class:`~cvsss.core.mc.processor.SequenceProcessor` for a choice.
 
     Its repr names the choice (stable across runs: used in resume signatures).
     """
@@ -341,7 +341,7 @@ def check_materials(
 
 
 def make_profile_factory(choice: ProfileChoice | None = None) -> Callable:
-    """A ``profile_factory`` for :class:`~cvsss.core.pipeline.SequenceProcessor`."""
+    """A ``profile_factory`` for :class:`~cvsss.core.mc.processor.SequenceProcessor`."""
     return ProfileFactory(choice)
 
 

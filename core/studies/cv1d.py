@@ -70,7 +70,7 @@ from typing import Any
 
 import numpy as np
 
-from ..control_variates import emcm_step
+from ..mc.control_variates import emcm_step
 
 #: Residual configurations, in table order, with their labels.
 CONFIGS = {

@@ -22,14 +22,14 @@ hashed per (pixel, stream, frame ⊕ seed); all configurations and both
 lightings use the same sample at a given (pixel, stream, frame, index), so
 their differences are not sampling noise.
 
-Per pixel, SPVG (:func:`cvsss.core.adaptive.sample_counts` /
-:func:`~cvsss.core.adaptive.update_history`, :class:`SSSParams` defaults:
+Per pixel, SPVG (:func:`cvsss.core.mc.adaptive.sample_counts` /
+:func:`~cvsss.core.mc.adaptive.update_history`, :class:`SSSParams` defaults:
 σ0² = 1e-4, η = 0.2, κ = 0.2, β = [8, 64]) tracks
 
 ``as``      S = f̄;
 ``as_ocv``  S = f̄ − α_{t−1}·G(t), α from the EMCM (η_cv = 1e-6) of
             Z = [f̄, G(t)] with ε_α = 1e-6 and the bound D of Alg. 2
-            (:func:`cvsss.core.control_variates.cv_coefficient`);
+            (:func:`cvsss.core.mc.control_variates.cv_coefficient`);
 ``as_ccv``  S = f̄ − G(t) (α ≡ 1, P Sec. 6.3);
 
 with the in-frame constant control G(t) = γ·B(p, t) (P Eq. 30).
@@ -45,8 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from ..adaptive import sample_counts, update_history
-from ..control_variates import cv_coefficient, emcm_step
+from ..mc.adaptive import sample_counts, update_history
+from ..mc.control_variates import cv_coefficient, emcm_step
 from ..params import SSSParams
 from ..profiles.burley import radius_from_tail, tail
 from ..sampling.sequence import pixel_offsets, r2_points

@@ -3,14 +3,14 @@
 The paper keeps the per-pixel history in RGBA16F render targets. This study
 runs the synthetic ``flash`` sequence (the paper's flash scene,
 ``I(t) = sin(2π·5t) + 1`` at 60 fps, :mod:`cvsss.core.synthetic`) through
-:class:`~cvsss.core.pipeline.SequenceProcessor` three times per adaptive
+:class:`~cvsss.core.mc.processor.SequenceProcessor` three times per adaptive
 method, in lockstep, with the same samples (fixed seed):
 
 ``float32``
     the reference history;
 ``float16``
     half-precision storage as shipped: Σ stored as Σ/η_cv, σ² as σ²/σ0²
-    (:mod:`cvsss.core.history`);
+    (:mod:`cvsss.core.mc.history`);
 ``float16_unscaled``
     half-precision storage without those scales (what a naive RGBA16F port
     does).
@@ -45,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from ..frame import Frame
-from ..history import History
+from ..mc.history import History
+from ..mc.processor import SequenceProcessor
 from ..params import SSSParams
-from ..pipeline import SequenceProcessor
 from ..synthetic import scene_frame
 
 VARIANTS = ("float32", "float16", "float16_unscaled")

@@ -1,6 +1,6 @@
 """Separable-SSS kernels: approximation error and per-frame cost (Figure S.3 in numbers).
 
-For every kernel of :data:`cvsss.core.separable.KERNELS`:
+For every kernel of :data:`cvsss.core.separable.kernels.KERNELS`:
 
 - **error**: the relative L2 (Frobenius) error ``‖R − A‖/‖R‖`` of the kernel's
   2D approximation A against the discrete 2D profile R (the "true kernel"),
@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..metrics import psnr
+from ..eval.metrics import psnr
+from ..mc.processor import SequenceProcessor, default_profile
 from ..params import SSSParams
-from ..pipeline import SequenceProcessor, default_profile
 from ..profiles import presets
 from ..profiles.dipole import DipoleProfile
-from ..separable import (
+from ..separable.kernels import (
     KERNELS,
     TAP_COUNTS,
     SeparableParams,

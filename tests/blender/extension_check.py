@@ -78,7 +78,7 @@ def main(zip_path: str, work: str) -> None:
     report["settings"] = group_state(scene.sss_settings)
     material = bpy.data.materials.new("check")
     report["material"] = group_state(material.sss_material)
-    properties = sys.modules[MOD + ".sss_addon.properties"]
+    properties = sys.modules[MOD + ".sss_addon.blender.properties"]
     report["params"] = properties.settings_to_params(scene.sss_settings).to_dict()
     report["core_module"] = sys.modules[MOD + ".core.params"].__file__
 

@@ -10,8 +10,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from cvsss.core.exr import read_result  # noqa: E402
-from cvsss.sss_addon import cli  # noqa: E402
+from cvsss.core.io.exr import read_result  # noqa: E402
+from cvsss.sss_addon.cli import main as cli  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -84,7 +84,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
     run = _run(
         [
             "-m",
-            "cvsss.sss_addon.cli",
+            "cvsss.sss_addon.cli.main",
             "render",
             str(demo_blend),
             "--frames",
@@ -99,7 +99,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
     # …and the script form Blender runs: blender -b scene.blend --python cli.py -- render …
     run = _run(
         [
-            str(ROOT / "sss_addon" / "cli.py"),
+            str(ROOT / "sss_addon" / "cli" / "main.py"),
             "--",
             "render",
             str(demo_blend),
@@ -134,7 +134,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
 
 
 def test_render_sequence_api_uses_current_scene(demo, tmp_path):
-    from cvsss.sss_addon.render import render_sequence
+    from cvsss.sss_addon.blender.render import render_sequence
 
     rows = render_sequence(
         None,

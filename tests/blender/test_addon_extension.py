@@ -94,7 +94,7 @@ def test_zip_content(extension_zip):
     assert manifest["permissions"]["files"]
     names = zipfile.ZipFile(extension_zip).namelist()
     assert "__init__.py" in names and "blender_manifest.toml" in names
-    assert "sss_addon/cli.py" in names and "core/pipeline.py" in names
+    assert "sss_addon/cli/main.py" in names and "core/mc/processor.py" in names
     assert "demo_blend/scenes.py" in names and "operators/sequence.py" in names
     assert sorted(n for n in names if n.startswith("wheels/")) == sorted(
         w.removeprefix("./") for w in manifest["wheels"]

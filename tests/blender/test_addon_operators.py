@@ -9,12 +9,12 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from cvsss.core.exr import read_frame, read_result  # noqa: E402
-from cvsss.core.pipeline import SequenceProcessor  # noqa: E402
+from cvsss.core.io.exr import read_frame, read_result  # noqa: E402
+from cvsss.core.mc.processor import SequenceProcessor  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
-from cvsss.sss_addon import passes, render  # noqa: E402
-from cvsss.sss_addon.images import MAPS  # noqa: E402
-from cvsss.sss_addon.properties import settings_to_params  # noqa: E402
+from cvsss.sss_addon.blender import passes, render  # noqa: E402
+from cvsss.sss_addon.blender.images import MAPS  # noqa: E402
+from cvsss.sss_addon.blender.properties import settings_to_params  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -11,8 +11,8 @@ from cvsss.core.methods import METHODS  # noqa: E402
 from cvsss.core.params import SSSParams  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
-from cvsss.sss_addon import materials  # noqa: E402
-from cvsss.sss_addon.properties import PRESET_NAMES, settings_to_params  # noqa: E402
+from cvsss.sss_addon.blender import materials  # noqa: E402
+from cvsss.sss_addon.blender.properties import PRESET_NAMES, settings_to_params  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -70,7 +70,7 @@ def test_hard_limits_make_invalid_params_impossible(fresh):
 
 
 def test_quality_picks_the_calibrated_parameters(fresh, monkeypatch):
-    from cvsss.core import quality
+    from cvsss.core.eval import quality
     from cvsss.core.params import ParameterError
 
     s = fresh.sss_settings
@@ -171,7 +171,7 @@ def test_material_inside_node_group(fresh):
 
 def _addon_classes():
     from cvsss.operators import demo, sequence
-    from cvsss.sss_addon import panels, properties
+    from cvsss.sss_addon.blender import panels, properties
 
     return [c for m in (properties, sequence, demo, panels) for c in m.classes]
 
@@ -262,7 +262,7 @@ class _Layout:
 def test_panels_draw(fresh):
     from types import SimpleNamespace
 
-    from cvsss.sss_addon import panels
+    from cvsss.sss_addon.blender import panels
 
     log = []
     context = SimpleNamespace(scene=fresh)

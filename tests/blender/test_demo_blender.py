@@ -8,9 +8,10 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from cvsss.core.exr import read_frame  # noqa: E402
+from cvsss.core.io.exr import read_frame  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
-from cvsss.sss_addon import cli, materials  # noqa: E402
+from cvsss.sss_addon.blender import materials  # noqa: E402
+from cvsss.sss_addon.cli import main as cli  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from cvsss.core import SequenceProcessor, SSSParams, adaptive
+from cvsss.core import SequenceProcessor, SSSParams
+from cvsss.core.mc import adaptive
 from cvsss.core.synthetic import scene_frame
 
 

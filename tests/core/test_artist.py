@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from cvsss.core.estimator import estimate_distant, prepare
+from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import ArtistProfile, DipoleProfile, presets
 from cvsss.core.profiles.artist import KEEP_SIGMAS, distant_mean, eq17_strength, from_radial
 from cvsss.core.profiles.radial import RadialModel, radial_model

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from cvsss.core import bench, quality
+from cvsss.core.eval import bench, quality
+from cvsss.core.mc.processor import SequenceProcessor
 from cvsss.core.params import SSSParams
-from cvsss.core.pipeline import SequenceProcessor
 from cvsss.core.synthetic import scene_frame
 
 TARGETS = (

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cvsss.core import control_variates as cv
+from cvsss.core.mc import control_variates as cv
 
 
 @pytest.mark.parametrize("eta", [1e-6, 0.05, 0.2, 0.999])

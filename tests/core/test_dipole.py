@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from cvsss.core.estimator import estimate_distant, prepare
+from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import DipoleProfile, dipole, presets
 from cvsss.core.synthetic import flat_plane
 

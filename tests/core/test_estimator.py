@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cvsss.core import SequenceProcessor, SSSParams
-from cvsss.core.estimator import estimate_distant, prepare
+from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import BurleyProfile
 from cvsss.core.synthetic import flat_plane, scene_frame
 

@@ -15,8 +15,9 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from cvsss.core import Camera, Frame, FrameResult, MaterialSpec, exr
-from cvsss.core.exr import (
+from cvsss.core import Camera, Frame, FrameResult, MaterialSpec
+from cvsss.core.io import exr
+from cvsss.core.io.exr import (
     OutputError,
     PassError,
     list_frames,

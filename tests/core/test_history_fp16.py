@@ -15,9 +15,9 @@ import json
 import numpy as np
 import pytest
 
-from cvsss.core.history import History
+from cvsss.core.mc.history import History
+from cvsss.core.mc.processor import SequenceProcessor
 from cvsss.core.params import SSSParams
-from cvsss.core.pipeline import SequenceProcessor
 from cvsss.core.studies import fp16
 from cvsss.core.synthetic import scene_frame
 
@@ -66,7 +66,7 @@ def test_float32_storage_is_never_scaled():
 
 def test_saturated_ratio_still_asks_for_beta_max():
     # A stored ratio clipped at 65504 must not lower the count below β_max.
-    from cvsss.core.adaptive import sample_counts
+    from cvsss.core.mc.adaptive import sample_counts
 
     p = SSSParams(target_variance=1e-12, beta_min=1, beta_max=4096)
     h = History.empty((1, 1), "float16", p.eta_cv, p.target_variance)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cvsss.core import METHODS, SequenceProcessor, SSSParams
-from cvsss.core.history import History
+from cvsss.core.mc.history import History
 from cvsss.core.synthetic import scene_frame, sequence
 
 

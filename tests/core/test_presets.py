@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from cvsss.core import SequenceProcessor, SSSParams
-from cvsss.core.estimator import estimate_distant, prepare
 from cvsss.core.frame import MaterialSpec
+from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import (
     ArtistProfile,
     BurleyProfile,

@@ -16,9 +16,9 @@ import math
 import numpy as np
 import pytest
 
-from cvsss.core import quality
+from cvsss.core.eval import quality
+from cvsss.core.eval.quality import Calibration, QualityTarget, choose, parse_quality
 from cvsss.core.params import SSSParams
-from cvsss.core.quality import Calibration, QualityTarget, choose, parse_quality
 
 
 def _calibration() -> Calibration:

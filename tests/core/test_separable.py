@@ -8,11 +8,11 @@ import pytest
 
 from cvsss.core import SequenceProcessor, SSSParams
 from cvsss.core.frame import Frame
+from cvsss.core.mc.processor import default_profile
 from cvsss.core.params import ParameterError
-from cvsss.core.pipeline import default_profile
 from cvsss.core.profiles import BurleyProfile, presets
 from cvsss.core.profiles.radial import discretize, radial_model
-from cvsss.core.separable import (
+from cvsss.core.separable.kernels import (
     KERNELS,
     SeparableParams,
     build_kernels,

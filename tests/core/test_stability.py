@@ -47,11 +47,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from cvsss.core import SequenceProcessor, SSSParams, adaptive, control_variates
+from cvsss.core import SequenceProcessor, SSSParams
 from cvsss.core.camera import Camera
 from cvsss.core.frame import Frame, MaterialSpec
-from cvsss.core.history import History
-from cvsss.core.pipeline import TRACK_LIMIT
+from cvsss.core.mc import adaptive, control_variates
+from cvsss.core.mc.history import History
+from cvsss.core.mc.processor import TRACK_LIMIT
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 ALL_METHODS = ("as", "as_ocv", "as_ccv", "fixed", "reference", "none")

@@ -25,9 +25,9 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from cvsss.core.exr import read_result, write_passes
+from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import scene_frame
-from cvsss.sss_addon import cli
+from cvsss.sss_addon.cli import main as cli
 
 W, H = 32, 18
 
@@ -228,7 +228,7 @@ def test_one_line_without_traceback_in_a_real_process(passes, tmp_path):
             [
                 sys.executable,
                 "-m",
-                "cvsss.sss_addon.cli",
+                "cvsss.sss_addon.cli.main",
                 "post",
                 *args,
                 "--out",
@@ -400,7 +400,7 @@ def test_render_not_a_blend_file(tmp_path):
         [
             sys.executable,
             "-m",
-            "cvsss.sss_addon.cli",
+            "cvsss.sss_addon.cli.main",
             "render",
             str(fake),
             "--out",

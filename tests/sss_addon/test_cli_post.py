@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from cvsss.core.exr import read_result, write_passes
+from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import sequence
-from cvsss.sss_addon import cli
+from cvsss.sss_addon.cli import main as cli
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +101,7 @@ def test_bad_parameters_exit_2_with_one_line(passes, tmp_path, args, fragment):
         [
             sys.executable,
             "-m",
-            "cvsss.sss_addon.cli",
+            "cvsss.sss_addon.cli.main",
             "post",
             str(passes),
             "--out",

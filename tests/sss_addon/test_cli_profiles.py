@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 
-from cvsss.core.exr import read_result, write_passes
+from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.methods import METHODS
 from cvsss.core.synthetic import sequence
-from cvsss.sss_addon import cli
+from cvsss.sss_addon.cli import main as cli
 
 
 @pytest.fixture(scope="module")
@@ -150,7 +150,7 @@ def test_missing_preset_from_the_command_line_process(passes, tmp_path):
         [
             sys.executable,
             "-m",
-            "cvsss.sss_addon.cli",
+            "cvsss.sss_addon.cli.main",
             "post",
             str(passes),
             "--out",

@@ -8,7 +8,8 @@ import json
 
 import pytest
 
-from cvsss.sss_addon import cli, demo
+from cvsss.sss_addon.cli import demo
+from cvsss.sss_addon.cli import main as cli
 
 
 @pytest.fixture(scope="module")

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cvsss.core.exr import read_result, write_passes
-from cvsss.core.history import History
+from cvsss.core.io.exr import read_result, write_passes
+from cvsss.core.mc.history import History
 from cvsss.core.synthetic import sequence
-from cvsss.sss_addon import cli
-from cvsss.sss_addon.post import CHECKPOINT_NAME, load_checkpoint
+from cvsss.sss_addon.cli import main as cli
+from cvsss.sss_addon.cli.post import CHECKPOINT_NAME, load_checkpoint
 
 TIMINGS = ("cvsss.pass_ms", "cvsss.update_ms", "cvsss.total_ms")
 FRAMES = 24
@@ -88,7 +88,7 @@ def test_killed_run_resumes_bit_identical(passes, full, tmp_path):
     out = tmp_path / "out"
     k = 6
     proc = subprocess.Popen(
-        [sys.executable, "-m", "cvsss.sss_addon.cli", *post_argv(passes, out)],
+        [sys.executable, "-m", "cvsss.sss_addon.cli.main", *post_argv(passes, out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
@@ -121,7 +121,7 @@ def test_killed_run_resumes_bit_identical(passes, full, tmp_path):
         [
             sys.executable,
             "-m",
-            "cvsss.sss_addon.cli",
+            "cvsss.sss_addon.cli.main",
             *post_argv(passes, out, "--resume", args=ARGS[:-1]),
         ],
         capture_output=True,
@@ -195,7 +195,7 @@ def test_interrupt_exits_130_and_points_to_resume(passes, tmp_path, monkeypatch,
     def interrupt(*_args, **_kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("cvsss.sss_addon.post.write_result", interrupt)
+    monkeypatch.setattr("cvsss.sss_addon.cli.post.write_result", interrupt)
     assert cli.main(post_argv(passes, tmp_path / "out")) == 130
     assert "--resume" in capsys.readouterr().err
 

@@ -26,9 +26,9 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
-from ..core.methods import METHODS, enum_items
-from ..core.params import MAX_SPP, PAPER_DEFAULTS, ParameterError, SSSParams
-from ..core.profiles import presets
+from ...core.methods import METHODS, enum_items
+from ...core.params import MAX_SPP, PAPER_DEFAULTS, ParameterError, SSSParams
+from ...core.profiles import presets
 
 _DEFAULTS = SSSParams()
 
@@ -477,7 +477,7 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
     method = settings.method if method is None else method
     if quality == "MANUAL" or method not in QUALITY_METHODS:
         return params
-    from ..core import quality as calibrated
+    from ...core.eval import quality as calibrated
 
     target = f"{settings.quality_psnr:g}dB" if quality == "PSNR" else f"{settings.quality_spp:g}spp"
     try:

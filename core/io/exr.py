@@ -37,9 +37,9 @@ from typing import IO
 import numpy as np
 import OpenEXR
 
-from .camera import Camera
-from .frame import Frame, MaterialSpec
-from .pipeline import FrameResult
+from ..camera import Camera
+from ..frame import Frame, MaterialSpec
+from ..mc.processor import FrameResult
 
 __all__ = [
     "BACKGROUND_DEPTH_WRITTEN",

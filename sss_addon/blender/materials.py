@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import bpy
 
-from ..core.frame import MaterialSpec
-from ..core.profiles.burley import blender_shape
+from ...core.frame import MaterialSpec
+from ...core.profiles.burley import blender_shape
 
 WEIGHT = "Subsurface Weight"
 RADIUS = "Subsurface Radius"
@@ -85,7 +85,7 @@ def principled_shape(material) -> tuple[float, float, float] | None:
 def _presets():
     """core.profiles.presets when the core ships it (measured materials), else None."""
     try:
-        return importlib.import_module("..core.profiles.presets", __package__)
+        return importlib.import_module("...core.profiles.presets", __package__)
     except ImportError:
         return None
 

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.color import srgb_encode
-from ..core.exr import read_result
-from ..core.metrics import median3
+from ...core.eval.color import srgb_encode
+from ...core.eval.metrics import median3
+from ...core.io.exr import read_result
 
 ADAPTIVE = (("as", "AS"), ("as_ocv", "AS + OCV"), ("as_ccv", "AS + CCV"))
 

@@ -4,7 +4,7 @@ Properties ▸ Material (whether the material takes part and its Burley shape)."
 import bpy
 from bpy.types import Panel
 
-from ..core.methods import METHODS
+from ...core.methods import METHODS
 from . import materials as sss_materials
 from .properties import QUALITY_METHODS
 

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.exr import make_folder, write_passes
-from ..core.metrics import median3
-from ..core.params import SSSParams
-from ..core.synthetic import sequence
+from ...core.eval.metrics import median3
+from ...core.io.exr import make_folder, write_passes
+from ...core.params import SSSParams
+from ...core.synthetic import sequence
 from . import report as plots
 from .post import format_clock, post_process, write_text_atomic
 
@@ -313,8 +313,8 @@ def blender_passes(
     """
     import bpy
 
-    from ..demo_blend import scenes
-    from . import render
+    from ...demo_blend import scenes
+    from ..blender import render
 
     scene_dir = Path(scene_dir)
     stamp = {

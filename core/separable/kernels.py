@@ -70,12 +70,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .estimator import Geometry, prepare
-from .params import ParameterError
-from .profiles.artist import ArtistProfile, from_radial
-from .profiles.base import Profile
-from .profiles.factory import MixedProfile
-from .profiles.radial import (
+from ..mc.estimator import Geometry, prepare
+from ..params import ParameterError
+from ..profiles.artist import ArtistProfile, from_radial
+from ..profiles.base import Profile
+from ..profiles.factory import MixedProfile
+from ..profiles.radial import (
     GRID,
     RadialModel,
     discretize,
@@ -83,7 +83,7 @@ from .profiles.radial import (
     gaussian_cells,
     radial_model,
 )
-from .sampling.sequence import pcg3d
+from ..sampling.sequence import pcg3d
 
 KERNELS = ("pre_integrated", "svd1", "svd2", "svd3", "svd4", "gaussians", "artist")
 TAP_COUNTS = (11, 17, 25)
@@ -585,7 +585,7 @@ def apply(
     kernels : per-slot kernels (built if None; pass them to reuse across frames)
     seed : int, jitter stream (with the frame number)
     depth_slope : float, bilateral tolerance of ``follow="slope"`` (SSSParams.depth_slope)
-    geom : Geometry from :func:`cvsss.core.estimator.prepare`, optional
+    geom : Geometry from :func:`cvsss.core.mc.estimator.prepare`, optional
 
     Returns
     -------
@@ -669,7 +669,7 @@ class SeparableProcessor:
         return self._kernels[1]
 
     def process(self, frame):
-        from .pipeline import FrameResult
+        from ..mc.processor import FrameResult
 
         t_start = time.perf_counter()
         profile = self.profile_for(frame)

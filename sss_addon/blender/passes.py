@@ -31,9 +31,9 @@ import bpy
 import numpy as np
 import OpenEXR
 
-from ..core.camera import Camera
-from ..core.exr import BACKGROUND_DEPTH_WRITTEN, OutputError, make_sidecar, write_sidecar
-from ..core.frame import MaterialSpec
+from ...core.camera import Camera
+from ...core.frame import MaterialSpec
+from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN, OutputError, make_sidecar, write_sidecar
 from . import materials as sss_materials
 
 

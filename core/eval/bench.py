@@ -68,13 +68,13 @@ from typing import Any
 
 import numpy as np
 
+from ..frame import Frame
+from ..mc.processor import SequenceProcessor
+from ..methods import METHODS
+from ..params import PAPER_DEFAULTS, SSSParams
+from ..synthetic import scene_frame
 from . import quality
-from .frame import Frame
-from .methods import METHODS
 from .metrics import median3, psnr
-from .params import PAPER_DEFAULTS, SSSParams
-from .pipeline import SequenceProcessor
-from .synthetic import scene_frame
 
 Size = tuple[int, int]
 Log = Callable[[str], None] | None
@@ -377,10 +377,10 @@ def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
     pass over a per-sample array: NumPy dispatch + memory traffic). A block
     whose API changed is reported as unavailable instead of failing.
     """
-    from .estimator import prepare
-    from .pipeline import default_profile
-    from .profiles.burley import BurleyProfile
-    from .sampling.sequence import pixel_offsets, r2_points
+    from ..mc.estimator import prepare
+    from ..mc.processor import default_profile
+    from ..profiles.burley import BurleyProfile
+    from ..sampling.sequence import pixel_offsets, r2_points
 
     out: dict[str, Any] = {"samples": n}
     rng = np.random.default_rng(1)
@@ -702,7 +702,7 @@ def _max_rss_mb() -> float:
 def rss_worker(spec: dict) -> dict:
     """Post-process frames of one configuration and report this process's memory.
 
-    Run in a fresh subprocess per configuration (``python -m cvsss.core.bench
+    Run in a fresh subprocess per configuration (``python -m cvsss.core.eval.bench
     --rss-worker JSON``) so configurations do not contaminate each other.
     Reports the peak over the whole process (interpreter, inputs, post-process)
     and, where Linux allows resetting the high-water mark, the peak while
@@ -907,7 +907,7 @@ def separable_kernels() -> tuple[list[tuple[str, Any]], str]:
     if "separable" not in METHODS:
         return [], "core.methods.METHODS has no 'separable' method yet; separable kernels skipped"
     try:
-        from . import separable as sep
+        from ..separable import kernels as sep
     except ImportError as exc:
         return [], f"core/separable.py is not importable ({exc}); separable kernels skipped"
     kernels = getattr(sep, "KERNELS", None)
@@ -956,7 +956,7 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
     """Pareto points, the quality calibration and the quality checks."""
     base = SSSParams(seed=cfg.seed)
     if passes is not None:
-        from .exr import list_frames, read_frame
+        from ..io.exr import list_frames, read_frame
 
         listed = list_frames(passes)[: cfg.warmup + cfg.pareto_frames]
         frames = [read_frame(p, number=n) for n, p in listed]
@@ -1483,7 +1483,7 @@ _COLOURS = {
 
 def write_plots(result: dict, out: Path) -> list[Path]:
     """pareto.png, quality.png and scaling.png from a bench result."""
-    from .studies.plotting import pyplot, save
+    from ..studies.plotting import pyplot, save
 
     plt = pyplot()
     written = []
@@ -1707,7 +1707,7 @@ def write_plots(result: dict, out: Path) -> list[Path]:
 
 # -- command line -----------------------------------------------------------------
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Arguments of ``cvsss bench`` (also ``python -m cvsss.core.bench``)."""
+    """Arguments of ``cvsss bench`` (also ``python -m cvsss.core.eval.bench``)."""
     parser = parser or argparse.ArgumentParser(
         prog="cvsss bench", description="Speed and the speed/accuracy trade, measured."
     )

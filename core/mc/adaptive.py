@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import SSSParams
+from ..params import SSSParams
 
 
 def sample_counts(

@@ -47,10 +47,10 @@ from typing import Any
 
 import numpy as np
 
-from .params import SSSParams
+from ..params import SSSParams
 
 #: The calibration shipped with the package.
-CALIBRATION_PATH = Path(__file__).resolve().parent / "data" / "quality_calibration.json"
+CALIBRATION_PATH = Path(__file__).resolve().parent.parent / "data" / "quality_calibration.json"
 
 #: Command that regenerates :data:`CALIBRATION_PATH`.
 REGENERATE_COMMAND = "cvsss bench --out out/bench --write-calibration"

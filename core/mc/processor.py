@@ -14,14 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..eval.color import REC709
+from ..frame import Frame
+from ..methods import Method, get_method
+from ..params import SSSParams
+from ..profiles import BurleyProfile, Profile
 from . import adaptive, control_variates
-from .color import REC709
 from .estimator import Geometry, estimate_distant, prepare
-from .frame import Frame
 from .history import History
-from .methods import Method, get_method
-from .params import SSSParams
-from .profiles import BurleyProfile, Profile
 
 #: XOR salt giving the reference its own random stream.
 REFERENCE_SALT = 0x9E3779B9
@@ -92,7 +92,7 @@ def default_profile(frame: Frame, params: SSSParams) -> Profile:
         return BurleyProfile(
             frame.d_table(), truncate=params.truncate, inverse=params.burley_inverse
         )
-    from .profiles.factory import frame_profile
+    from ..profiles.factory import frame_profile
 
     return frame_profile(frame, params)
 
@@ -130,7 +130,7 @@ class SequenceProcessor:
         self._profile: Profile | None = None
         self._separable = None
         if self.method.counts == "separable":
-            from .separable import SeparableParams, SeparableProcessor
+            from ..separable.kernels import SeparableParams, SeparableProcessor
 
             self._separable = SeparableProcessor(
                 self.params, separable or SeparableParams(), self._profile_for, self.method.name

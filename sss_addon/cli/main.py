@@ -9,7 +9,7 @@ cv1d    the coefficient study of SPEC §9 (writes out/cv1d.json + plot)
 fig2    the 1D motivating example (writes out/fig2.json + plot)
 bench   speed and the speed/accuracy trade, measured (writes out/bench/bench.json + plots)
 
-Run inside Blender too: ``blender -b scene.blend --python sss_addon/cli.py --
+Run inside Blender too: ``blender -b scene.blend --python sss_addon/cli/main.py --
 <subcommand> …``; arguments after ``--`` are read.
 
 User errors (bad parameters, missing or corrupt passes, unwritable folders)
@@ -27,7 +27,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     # Run as a script (``blender --python cli.py`` or ``python cli.py``): load
     # the extension root as the package ``cvsss`` so relative imports work.
-    _root = Path(__file__).resolve().parent.parent
+    _root = Path(__file__).resolve().parent.parent.parent
     if "cvsss" not in sys.modules:
         _spec = importlib.util.spec_from_file_location(
             "cvsss", _root / "__init__.py", submodule_search_locations=[str(_root)]
@@ -35,10 +35,10 @@ if __package__ in (None, ""):
         _mod = importlib.util.module_from_spec(_spec)
         sys.modules["cvsss"] = _mod
         _spec.loader.exec_module(_mod)
-    __package__ = "cvsss.sss_addon"
+    __package__ = "cvsss.sss_addon.cli"
 
-from ..core.methods import METHODS
-from ..core.params import SSSParams
+from ...core.methods import METHODS
+from ...core.params import SSSParams
 
 EXIT_USAGE = 2
 
@@ -95,9 +95,9 @@ def parse_methods(text: str) -> list[str]:
 
 def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
     """Profile (P Table 2), measured-material and separable-SSS flags."""
-    from ..core.profiles.factory import PROFILE_NAMES
-    from ..core.profiles.presets import names
-    from ..core.separable import KERNELS, TAP_COUNTS
+    from ...core.profiles.factory import PROFILE_NAMES
+    from ...core.profiles.presets import names
+    from ...core.separable.kernels import KERNELS, TAP_COUNTS
 
     group = parser.add_argument_group("profiles and separable SSS")
     group.add_argument(
@@ -168,8 +168,8 @@ def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
 
 def processor_options(args: argparse.Namespace, methods: list[str]) -> dict:
     """SequenceProcessor keywords from the profile / separable flags (empty: defaults)."""
-    from ..core.profiles.factory import ProfileChoice, make_profile_factory
-    from ..core.separable import SeparableParams
+    from ...core.profiles.factory import ProfileChoice, make_profile_factory
+    from ...core.separable.kernels import SeparableParams
 
     options = {}
     try:
@@ -202,8 +202,8 @@ def processor_options(args: argparse.Namespace, methods: list[str]) -> dict:
 
 def _check_first_frame(passes: Path, choice) -> None:
     """Refuse a profile choice the first frame's materials cannot take, before any output."""
-    from ..core.exr import PassError, list_frames, read_sidecar
-    from ..core.profiles.factory import check_materials
+    from ...core.io.exr import PassError, list_frames, read_sidecar
+    from ...core.profiles.factory import check_materials
 
     try:
         first = list_frames(passes)[0][1]
@@ -355,7 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
     add_param_arguments(rnd)
 
-    from ..core.bench import build_parser as bench_parser
+    from ...core.eval.bench import build_parser as bench_parser
 
     bench_parser(
         sub.add_parser(
@@ -377,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_study(module: str, args: argparse.Namespace) -> int:
-    mod = importlib.import_module(f"..core.studies.{module}", __package__)
+    mod = importlib.import_module(f"...core.studies.{module}", __package__)
     argv = ["--out", str(args.out), "--seed", str(args.seed)]
     if args.seeds is not None:
         argv += ["--seeds", str(args.seeds)]
@@ -419,7 +419,7 @@ def _render(args: argparse.Namespace) -> int:
         ) from None
     if args.blend is None and not bpy.data.filepath:
         raise UserError("no .blend file given and Blender has none open")
-    from .render import RenderError, render_sequence
+    from ..blender.render import RenderError, render_sequence
 
     try:
         render_sequence(
@@ -444,7 +444,7 @@ def post_params(args: argparse.Namespace, methods: list[str]) -> SSSParams:
     params = params_from_args(args)
     if args.quality is None:
         return params
-    from ..core import quality
+    from ...core.eval import quality
 
     tuned = [m for m in methods if m not in ("none", "reference")]
     if len(tuned) != 1:
@@ -542,7 +542,7 @@ def run(argv: list[str] | None = None) -> int:
     if args.command == "render":
         return _render(args)
     if args.command == "bench":
-        from ..core import bench
+        from ...core.eval import bench
 
         try:
             config = bench.config_from_args(args)
@@ -563,8 +563,8 @@ def run(argv: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: turns user errors into one line on stderr and exit status 2."""
-    from ..core.exr import OutputError, PassError
-    from ..core.params import ParameterError
+    from ...core.io.exr import OutputError, PassError
+    from ...core.params import ParameterError
     from .post import CheckpointError
 
     if argv is None:

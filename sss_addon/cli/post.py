@@ -54,7 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.exr import (
+from ...core.eval.metrics import psnr
+from ...core.io.exr import (
     OutputError,
     PassError,
     list_frames,
@@ -63,10 +64,9 @@ from ..core.exr import (
     read_sidecar,
     write_result,
 )
-from ..core.history import History
-from ..core.metrics import psnr
-from ..core.params import SSSParams
-from ..core.pipeline import SequenceProcessor
+from ...core.mc.history import History
+from ...core.mc.processor import SequenceProcessor
+from ...core.params import SSSParams
 
 METRICS_FIELDS = ("frame", "method", "spp", "pass_ms", "psnr_db")
 

@@ -31,11 +31,12 @@ from pathlib import Path
 
 import bpy
 
-from ..core.exr import read_frame, write_result
-from ..core.methods import METHODS
-from ..core.metrics import psnr
-from ..core.params import SSSParams
-from ..core.pipeline import FrameResult, SequenceProcessor
+from ...core.eval.metrics import psnr
+from ...core.io.exr import read_frame, write_result
+from ...core.mc.processor import FrameResult, SequenceProcessor
+from ...core.methods import METHODS
+from ...core.params import SSSParams
+from ..cli.post import format_clock, format_metrics, write_text_atomic
 from . import materials as sss_materials
 from .passes import (
     PassSetup,
@@ -47,7 +48,6 @@ from .passes import (
     render_view_layer,
     scene_camera,
 )
-from .post import format_clock, format_metrics, write_text_atomic
 
 __all__ = [
     "Job",
@@ -434,7 +434,7 @@ def _ensure_registered() -> Callable[[], None] | None:
     """
     if hasattr(bpy.types.Scene, "sss_settings"):
         return None
-    from .. import register, unregister
+    from ... import register, unregister
 
     register()
     return unregister

@@ -33,8 +33,8 @@ from functools import cached_property
 
 import numpy as np
 
-from .profiles.base import Profile
-from .sampling.sequence import pixel_hashes, r2_points_fixed
+from ..profiles.base import Profile
+from ..sampling.sequence import pixel_hashes, r2_points_fixed
 
 TWO_PI = 2.0 * np.pi
 

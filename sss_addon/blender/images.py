@@ -11,7 +11,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..core.pipeline import FrameResult
+from ...core.mc.processor import FrameResult
 
 #: Datablock name -> (FrameResult field, is data (Non-Color)).
 MAPS = {

@@ -1,0 +1,1 @@
+"""sss_addon/blender."""
