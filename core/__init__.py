@@ -7,9 +7,9 @@ References: Xie & Olano 2021 (P), Xie's defense slides (D), Jimenez et al.
 
 from .camera import Camera
 from .frame import Frame, MaterialSpec
-from .mc.processor import FrameResult, SequenceProcessor
-from .methods import METHODS, Method, get_method
-from .params import ParameterError, SSSParams
+from .methods import METHODS, Method, MethodOptions, get_method, make_processor
+from .params import ParameterError, SeparableParams, SSSParams
+from .result import FrameResult
 
 __all__ = [
     "METHODS",
@@ -18,8 +18,10 @@ __all__ = [
     "FrameResult",
     "MaterialSpec",
     "Method",
+    "MethodOptions",
     "ParameterError",
     "SSSParams",
-    "SequenceProcessor",
+    "SeparableParams",
     "get_method",
+    "make_processor",
 ]

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera
+from .geometry import compact_materials
 
 #: Depths at or beyond this (Blender writes 1e10 for the background) are "no surface".
 BACKGROUND_DEPTH = 1e9
@@ -115,7 +116,7 @@ class Frame:
         Input values replaced because unusable: non-finite or negative
         lighting, albedo and combined values (-> 0), NaN depths
         (-> background), non-finite material indices (-> 0, no SSS) and
-        motion vectors (-> 0, static).
+        motion vectors (-> off screen: the pixel's history is dropped).
     lighting_passes : tuple of str
         Passes summed into B (e.g. Diffuse Direct, Diffuse Indirect).
     """
@@ -168,8 +169,11 @@ class Frame:
             mv = np.asarray(_clean("motion", self.motion, shape, 2), dtype=np.float64)
             bad = ~np.isfinite(mv)
             repaired += int(np.count_nonzero(bad))
-            # Motion beyond any image size only ever means "came from off screen".
-            mv = np.clip(np.where(bad, 0.0, mv), -MAX_MOTION, MAX_MOTION)
+            # A pixel whose motion is unknown did not come from anywhere we know:
+            # point it off screen, which drops its history (a disocclusion), as
+            # does motion beyond any image size.
+            mv[np.any(bad, axis=-1)] = MAX_MOTION
+            mv = np.clip(mv, -MAX_MOTION, MAX_MOTION)
             self.motion = mv.astype(np.float32)
         for slot, spec in self.materials.items():
             if slot != spec.slot:
@@ -187,9 +191,13 @@ class Frame:
         return np.isfinite(self.depth)
 
     def d_table(self) -> np.ndarray:
-        """(K, 3) Burley ``d`` per slot (scene units), K = max slot in use + 1."""
-        k = max([0, *self.materials.keys(), int(self.material.max(initial=0))]) + 1
-        table = np.zeros((k, 3))
-        for slot, spec in self.materials.items():
+        """(K + 1, 3) Burley ``d`` per compact slot (scene units; row 0: no subsurface).
+
+        Rows follow :func:`core.geometry.compact_slots`: the K subsurface
+        materials sorted by Material Index, so the table's size does not
+        depend on the index values.
+        """
+        table = np.zeros((len(self.materials) + 1, 3))
+        for slot, spec in compact_materials(self.materials).items():
             table[slot] = spec.d
         return table

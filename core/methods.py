@@ -1,13 +1,84 @@
-"""The one method table: name → what the method does.
+"""The one method registry: name → what the method is and how to build its processor.
 
-The same table feeds the pipeline's dispatch, the Blender EnumProperty items,
-the command-line choices and the report columns, so a method added here shows
-up everywhere at once.
+The same table feeds the sequence driver (core.run), the Blender EnumProperty
+items, the command-line choices and the report columns, so a method added
+here shows up everywhere at once. Importing this module imports no estimator:
+each entry's factory loads its implementation when a processor is built.
+
+A *processor* carries one method's state (the per-pixel history) from frame to
+frame; every processor has the same interface (:class:`Processor`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from .params import SeparableParams, SSSParams
+
+if TYPE_CHECKING:
+    from .frame import Frame
+    from .profiles.factory import ProfileChoice
+    from .result import FrameResult
+
+#: XOR salt giving the reference its own random stream.
+REFERENCE_SALT = 0x9E3779B9
+
+
+class Processor(Protocol):
+    """What every method's processor offers the sequence driver."""
+
+    method: Method
+
+    def process(self, frame: Frame) -> FrameResult:
+        """Post-process the next frame of the sequence."""
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The state carried to the next frame, as named arrays (empty: stateless)."""
+
+    def restore(self, state: Mapping[str, np.ndarray]) -> None:
+        """Continue from a :meth:`state` (bit for bit)."""
+
+
+@dataclass(frozen=True)
+class MethodOptions:
+    """Settings beyond :class:`SSSParams` that some methods take.
+
+    Attributes
+    ----------
+    profile : core.profiles.factory.ProfileChoice or None
+        Profile / measured material for every slot (None: each material's own).
+    separable : SeparableParams
+        Kernel, taps and jitter of the ``separable`` method.
+    """
+
+    profile: ProfileChoice | None = None
+    separable: SeparableParams = field(default_factory=SeparableParams)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (run signatures, reports)."""
+        profile = None
+        if self.profile is not None and not self.profile.is_default:
+            profile = self.profile.to_dict()
+        return {"profile": profile, "separable": self.separable.to_dict()}
+
+
+Factory = Callable[["Method", SSSParams, MethodOptions], Processor]
+
+
+def _monte_carlo(method: Method, params: SSSParams, options: MethodOptions) -> Processor:
+    from .mc.processor import MonteCarloProcessor
+
+    return MonteCarloProcessor(method, params, options)
+
+
+def _separable(method: Method, params: SSSParams, options: MethodOptions) -> Processor:
+    from .separable.processor import SeparableProcessor
+
+    return SeparableProcessor(method, params, options)
 
 
 @dataclass(frozen=True)
@@ -22,26 +93,33 @@ class Method:
         Short human-readable name.
     description : str
         Tooltip / help text.
-    counts : {"none", "fixed", "reference", "adaptive", "separable"}
+    kind : {"none", "fixed", "reference", "adaptive", "separable"}
         How per-pixel sample counts are chosen.
     cv : {"none", "online", "constant"}
         Control variate applied to the tracked value (adaptive only).
+    factory : callable (Method, SSSParams, MethodOptions) -> Processor
     """
 
     name: str
     label: str
     description: str
-    counts: str
+    kind: str
     cv: str = "none"
+    factory: Factory = field(default=_monte_carlo, repr=False, compare=False)
 
     @property
     def adaptive(self) -> bool:
-        return self.counts == "adaptive"
+        return self.kind == "adaptive"
 
     @property
     def monte_carlo(self) -> bool:
         """True when the method draws distant-scattering samples."""
-        return self.counts in ("fixed", "reference", "adaptive")
+        return self.kind in ("fixed", "reference", "adaptive")
+
+    @property
+    def seed_salt(self) -> int:
+        """XORed into the seed: the reference draws an independent stream."""
+        return REFERENCE_SALT if self.kind == "reference" else 0
 
 
 METHODS: dict[str, Method] = {
@@ -83,6 +161,7 @@ METHODS: dict[str, Method] = {
             "Jimenez et al. 2015 separable SSS: two 1D passes per kernel term "
             "(pre-integrated, SVD rank-k, sum of Gaussians or artist kernel)",
             "separable",
+            factory=_separable,
         ),
     )
 }
@@ -92,8 +171,24 @@ def get_method(name: str) -> Method:
     """Look up a method by name with an error listing the valid names."""
     try:
         return METHODS[name]
-    except KeyError:
+    except (KeyError, TypeError):
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {name!r}") from None
+
+
+def make_processor(
+    name: str, params: SSSParams | None = None, options: MethodOptions | None = None
+) -> Processor:
+    """A fresh processor (empty history) of method ``name``.
+
+    Parameters
+    ----------
+    name : str, a key of :data:`METHODS`
+    params : SSSParams, default the paper's
+    options : MethodOptions, default each material's own profile and the
+        default separable kernel
+    """
+    method = get_method(name)
+    return method.factory(method, params or SSSParams(), options or MethodOptions())
 
 
 def enum_items() -> list[tuple[str, str, str]]:

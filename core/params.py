@@ -1,9 +1,12 @@
-"""The one parameters object of the algorithm.
+"""The parameters of the algorithm, in one place.
 
-The Blender panel, the command line and the tests all build a
-:class:`SSSParams`; every check on a parameter lives in ``__post_init__`` so an
-invalid value is refused once, at the boundary, with a message that names the
-argument and its allowed range.
+Every user-facing parameter is a field of a frozen dataclass whose metadata
+(:class:`Spec`, attached with :func:`param`) holds its range, unit, help text
+and UI label next to its default. The command line (``sss_addon.cli``) and the
+Blender properties (``sss_addon.blender.properties``) are generated from these
+specs, and ``__post_init__`` validates every field against them, so a value is
+refused once, at the boundary, with a message that names the argument and its
+allowed range.
 
 Units
 -----
@@ -12,12 +15,14 @@ scene-referred values multiplied by ``exposure``. ``target_variance`` (σ0²) is
 therefore a variance of that luminance: with ``exposure = 1`` and lighting
 around 1 (a white diffuse surface lit by a 1 W/m² sun-like light gives
 values ~0.3), σ0² = 1e-4 means a per-frame standard deviation of 0.01 in the
-tracked distant-scattering luminance.
+tracked distant-scattering luminance. Distances are in scene units.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -37,161 +42,452 @@ HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
 MAX_SPP = 4096
 
+#: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
+KERNELS = ("pre_integrated", "svd1", "svd2", "svd3", "svd4", "gaussians", "artist")
+TAP_COUNTS = (11, 17, 25)
+FOLLOW_RULES = ("slope", "exponential")
+FILTERS = ("nearest", "linear")
+#: Taps within this share of the kernel range are jittered (Jimenez et al.'s 33 %).
+JITTER_THRESHOLD = 0.33
+#: Cells per side of the discrete 2D profile the separable kernels are fitted to.
+PROFILE_GRID = 129
+
 
 class ParameterError(ValueError):
     """An invalid parameter value; the message names the argument and range."""
 
 
-def _check_range(
-    name: str,
-    value: float,
-    lo: float,
-    hi: float,
-    *,
-    lo_open: bool = False,
-    hi_open: bool = False,
-) -> None:
+@dataclass(frozen=True)
+class Spec:
+    """What a parameter means and which values it takes (field metadata).
+
+    Attributes
+    ----------
+    help : str
+        One sentence for tooltips and ``--help``.
+    label : str
+        Name in the Blender panel (defaults to the field name, title-cased).
+    unit : str
+        Unit of the value (``""``: unitless).
+    lo, hi : float or None
+        Allowed range; ``None`` is unbounded.
+    lo_open, hi_open : bool
+        Whether the range excludes its ends.
+    choices : tuple or None
+        The allowed values (strings or integers).
+    flag : str or None
+        Command-line flag without ``--`` (default: the field name with ``-``);
+        ``""`` keeps the field off the command line.
+    ui : bool
+        Shown as a Blender property.
+    advanced : bool
+        Drawn in the panel's *Advanced* sub-panel.
+    soft : (float, float) or None
+        Slider range in the panel.
+    ui_lo, ui_hi : float or None
+        Hard limits of the Blender property where they differ from the range
+        (open ends, or Blender's 32-bit integers).
+    precision : int
+        Digits shown by the panel.
+    """
+
+    help: str
+    label: str = ""
+    unit: str = ""
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple | None = None
+    flag: str | None = None
+    ui: bool = True
+    advanced: bool = False
+    soft: tuple[float, float] | None = None
+    ui_lo: float | None = None
+    ui_hi: float | None = None
+    precision: int = 3
+
+    def describe(self) -> str:
+        """Help text with the range and unit, as the CLI and the UI print it."""
+        text = self.help
+        if self.choices is None and (self.lo is not None or self.hi is not None):
+            lo = "-inf" if self.lo is None else f"{self.lo:g}"
+            hi = "inf" if self.hi is None else f"{self.hi:g}"
+            left = "(" if self.lo_open or self.lo is None else "["
+            right = ")" if self.hi_open or self.hi is None else "]"
+            text += f" {left}{lo}, {hi}{right}"
+        if self.unit:
+            text += f", {self.unit}"
+        return text
+
+
+def param(default: Any, **spec: Any) -> Any:
+    """A dataclass field with a :class:`Spec` (see there for the keywords)."""
+    return dataclasses.field(default=default, metadata={"spec": Spec(**spec)})
+
+
+def specs(cls_or_obj: Any) -> Iterator[tuple[dataclasses.Field, Spec]]:
+    """(field, spec) of every field of a parameters dataclass that has a spec."""
+    for f in fields(cls_or_obj):
+        spec = f.metadata.get("spec")
+        if spec is not None:
+            yield f, spec
+
+
+def flag_of(f: dataclasses.Field, spec: Spec) -> str:
+    """The command-line flag (without ``--``) of a field, ``""`` when it has none."""
+    return f.name.replace("_", "-") if spec.flag is None else spec.flag
+
+
+def _check_range(name: str, value: Any, spec: Spec) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ParameterError(f"{name} must be a number, got {value!r}")
     if not math.isfinite(value):
         raise ParameterError(f"{name} must be finite, got {value}")
-    too_low = value <= lo if lo_open else value < lo
-    too_high = value >= hi if hi_open else value > hi
+    lo = -math.inf if spec.lo is None else spec.lo
+    hi = math.inf if spec.hi is None else spec.hi
+    too_low = value <= lo if spec.lo_open else value < lo
+    too_high = value >= hi if spec.hi_open else value > hi
     if too_low or too_high:
-        left = "(" if lo_open else "["
-        right = ")" if hi_open or math.isinf(hi) else "]"
+        left = "(" if spec.lo_open else "["
+        right = ")" if spec.hi_open or math.isinf(hi) else "]"
         hi_text = "inf" if math.isinf(hi) else f"{hi:g}"
         raise ParameterError(f"{name} must be in {left}{lo:g}, {hi_text}{right}, got {value:g}")
 
 
-def _check_int(name: str, value: int, lo: int, hi: int) -> None:
+def _check_int(name: str, value: Any, spec: Spec) -> None:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ParameterError(f"{name} must be an integer, got {value!r}")
-    if not lo <= value <= hi:
-        raise ParameterError(f"{name} must be in [{lo}, {hi}], got {value}")
+    if not spec.lo <= value <= spec.hi:
+        raise ParameterError(f"{name} must be in [{int(spec.lo)}, {int(spec.hi)}], got {value}")
+
+
+def validate(obj: Any) -> None:
+    """Check every field of a parameters dataclass against its spec.
+
+    Raises
+    ------
+    ParameterError
+        Naming the field and its allowed values or range.
+    """
+    for f, spec in specs(obj):
+        value = getattr(obj, f.name)
+        if value is None and f.default is None:
+            continue  # optional
+        if spec.choices is not None:
+            if isinstance(value, bool) or value not in spec.choices:
+                listing = ", ".join(map(str, spec.choices))
+                what = f"{spec.choices!r}" if isinstance(spec.choices[0], int) else listing
+                raise ParameterError(f"{f.name} must be one of {what}, got {value!r}")
+        elif f.type in ("bool", bool):
+            if not isinstance(value, bool):
+                raise ParameterError(f"{f.name} must be a bool, got {value!r}")
+        elif f.type in ("str", str, "str | None"):
+            if not isinstance(value, str):
+                raise ParameterError(f"{f.name} must be a string, got {value!r}")
+        elif f.type in ("int", int, "int | None"):
+            _check_int(f.name, value, spec)
+        else:
+            _check_range(f.name, value, spec)
+
+
+class _Params:
+    """Shared helpers of the parameters dataclasses."""
+
+    def replace(self, **changes: Any):
+        """Return a copy with ``changes`` applied (and validated)."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dictionary of the parameters (for JSON sidecars, checkpoints and reports)."""
+        return asdict(self)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Names of the parameters, in declaration order."""
+        return tuple(f.name for f in fields(cls))
 
 
 @dataclass(frozen=True)
-class SSSParams:
+class SSSParams(_Params):
     """Parameters of adaptive control-variate subsurface scattering.
 
-    Attributes
-    ----------
-    eta : float
-        η, exponential moving coefficient of the sample-count history
-        (P Eq. 5–7), in (0, 1]. Larger reacts faster, smaller smooths more.
-    target_variance : float
-        σ0², target variance of the tracked luminance (see module doc for
-        units), in (0, inf).
-    eps_u : float
-        ε_u, pixels whose largest distant-scattering energy ratio γ is below
-        this get zero samples (P Eq. 18), in [0, 1].
-    eps_alpha : float
-        ε_α, suppressing constant of the CV coefficient (P Sec. 6.2.3),
-        in [0, inf); makes α = 1 when both moments vanish.
-    kappa : float
-        κ, weight of the SPVG correction term (P Eq. 8), in [0, 1].
-    beta_min, beta_max : int
-        β range, clamp of the adaptive sample count, 1 ≤ β_min ≤ β_max ≤ 4096.
-    eta_cv : float
-        η_cv, exponential moving coefficient of the CV covariance history
-        (P Eq. 33), in (0, 1].
-    n_init : int or None
-        Mean sample count assumed where there is no valid history
-        (D, slides 80–82); ``None`` means ``beta_min``.
-    fixed_spp : int
-        Samples per pixel of the ``fixed`` method, in [1, 4096].
-    reference_spp : int
-        Samples per pixel of the ``reference`` method, in [1, 4096].
-    seed : int
-        Seed of the per-pixel, per-frame hash, in [0, 2**32 - 1]. Same seed ⇒
-        bit-identical output.
-    history_precision : {"float32", "float16"}
-        Storage of the per-pixel history; float16 mimics GPU RGBA16F targets.
-    exposure : float
-        Scale applied to linear values before tracking and PSNR, in (0, inf).
-    burley_inverse : {"exact", "fast"}
-        Radius sampler of the Burley profile: Golubev's exact inverse or the
-        fast approximation of the defense slides (biased, error reported).
-    depth_slope : float
-        Bilateral "follow surface" rule: a sample at planar radius r (scene
-        units) is rejected (falls back to the centre value) when the depth
-        difference to the centre exceeds ``depth_slope * r``; 2 follows
-        surfaces tilted up to ~63° from the view plane. In [0, inf).
-    truncate : float
-        Profile truncation radius in units of the profile's shape ``d``
-        (Cycles uses 16 for Burley), in (0, 64].
-    chunk_samples : int
-        Upper bound of samples processed in one vectorised batch (memory
-        bound: ~60 bytes per sample), in [1024, 2**26].
+    Each field's :class:`Spec` (``dataclasses.fields(SSSParams)[i].metadata``)
+    states its meaning, range and unit; the highlights:
+
+    eta, eta_cv : η and η_cv, exponential moving coefficients of the
+        sample-count history (P Eq. 5–7) and of the CV covariance (P Eq. 33).
+    target_variance : σ0², target variance of the tracked luminance
+        (luminance², see module doc).
+    eps_u, eps_alpha, kappa : ε_u (P Eq. 18), ε_α (P Sec. 6.2.3), κ (P Eq. 8).
+    beta_min, beta_max : the β clamp of the adaptive count.
+    n_init : mean count assumed without valid history (D, slides 80–82);
+        ``None`` means β_min. Not a user setting.
+    chunk_samples : upper bound of samples per vectorised batch (~60 bytes
+        each). Not a user setting.
     """
 
-    eta: float = PAPER_DEFAULTS["eta"]
-    target_variance: float = PAPER_DEFAULTS["target_variance"]
-    eps_u: float = PAPER_DEFAULTS["eps_u"]
-    eps_alpha: float = PAPER_DEFAULTS["eps_alpha"]
-    kappa: float = PAPER_DEFAULTS["kappa"]
-    beta_min: int = PAPER_DEFAULTS["beta_min"]
-    beta_max: int = PAPER_DEFAULTS["beta_max"]
-    eta_cv: float = PAPER_DEFAULTS["eta_cv"]
-    n_init: int | None = None
-    fixed_spp: int = 64
-    reference_spp: int = 1024
-    seed: int = 0
-    history_precision: str = "float32"
-    exposure: float = 1.0
-    burley_inverse: str = "exact"
-    depth_slope: float = 2.0
-    truncate: float = 16.0
-    chunk_samples: int = 1 << 20
+    eta: float = param(
+        PAPER_DEFAULTS["eta"],
+        label="η (History Rate)",
+        help="Exponential moving coefficient of the per-pixel sample-count history; "
+        "larger reacts faster to change, smaller smooths more",
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
+        ui_lo=1e-6,
+        soft=(0.01, 1.0),
+    )
+    target_variance: float = param(
+        PAPER_DEFAULTS["target_variance"],
+        label="σ0² (Target Variance)",
+        help="Target variance of the tracked distant-scattering luminance (exposure-scaled, "
+        "linear); smaller means more samples and higher quality",
+        unit="luminance²",
+        lo=0.0,
+        lo_open=True,
+        ui_lo=1e-12,
+        ui_hi=1e6,
+        soft=(1e-6, 1e-2),
+        precision=6,
+    )
+    eps_u: float = param(
+        PAPER_DEFAULTS["eps_u"],
+        label="ε_u (Distant Cutoff)",
+        help="Pixels whose largest distant-scattering energy ratio γ is below this get no samples",
+        lo=0.0,
+        hi=1.0,
+        soft=(0.0, 0.2),
+        precision=4,
+    )
+    eps_alpha: float = param(
+        PAPER_DEFAULTS["eps_alpha"],
+        label="ε_α (CV Suppression)",
+        help="Suppressing constant of the control-variate coefficient; damps jitter-driven "
+        "overestimates and gives α = 1 when both moments vanish",
+        unit="luminance²",
+        lo=0.0,
+        ui_hi=1e6,
+        soft=(0.0, 1e-2),
+        precision=6,
+    )
+    kappa: float = param(
+        PAPER_DEFAULTS["kappa"],
+        label="κ (Correction Weight)",
+        help="Weight of the SPVG correction term",
+        lo=0.0,
+        hi=1.0,
+    )
+    beta_min: int = param(
+        PAPER_DEFAULTS["beta_min"],
+        label="β min",
+        help="Smallest adaptive sample count per SSS pixel",
+        unit="samples",
+        lo=1,
+        hi=MAX_SPP,
+        soft=(1, 256),
+    )
+    beta_max: int = param(
+        PAPER_DEFAULTS["beta_max"],
+        label="β max",
+        help="Largest adaptive sample count per SSS pixel",
+        unit="samples",
+        lo=1,
+        hi=MAX_SPP,
+        soft=(1, 1024),
+    )
+    eta_cv: float = param(
+        PAPER_DEFAULTS["eta_cv"],
+        label="η_cv (Covariance Rate)",
+        help="Exponential moving coefficient of the control-variate covariance history "
+        "(the paper's 1e-6 is a very long memory)",
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
+        ui_lo=1e-9,
+        soft=(1e-6, 0.5),
+        precision=6,
+    )
+    n_init: int | None = param(
+        None,
+        help="Mean sample count assumed without valid history (None: β min)",
+        unit="samples",
+        lo=1,
+        hi=MAX_SPP,
+        flag="",
+        ui=False,
+    )
+    fixed_spp: int = param(
+        64,
+        label="Fixed Samples",
+        help="Samples per pixel of the Fixed N method",
+        unit="samples",
+        lo=1,
+        hi=MAX_SPP,
+        soft=(1, 1024),
+    )
+    reference_spp: int = param(
+        1024,
+        label="Reference Samples",
+        help="Samples per pixel of the reference the PSNR is measured against",
+        unit="samples",
+        lo=1,
+        hi=MAX_SPP,
+        soft=(16, MAX_SPP),
+    )
+    seed: int = param(
+        0,
+        label="Seed",
+        help="Seed of the per-pixel random sequence; the same seed gives identical output",
+        lo=0,
+        hi=2**32 - 1,
+        ui_hi=2**31 - 1,
+    )
+    history_precision: str = param(
+        "float32",
+        label="History Precision",
+        help="Storage of the per-pixel history (float16 mimics the paper's RGBA16F targets)",
+        choices=HISTORY_PRECISIONS,
+    )
+    exposure: float = param(
+        1.0,
+        label="Exposure",
+        help="Linear scale applied before tracking luminance and computing PSNR",
+        lo=0.0,
+        lo_open=True,
+        ui_lo=1e-6,
+        ui_hi=1e6,
+        soft=(0.01, 100.0),
+    )
+    burley_inverse: str = param(
+        "exact",
+        label="Burley Sampler",
+        help="Radius sampler of the Burley profile: Golubev's exact inverse or the fast "
+        "approximation of the defense slides (biased; its CDF error is reported)",
+        choices=BURLEY_INVERSES,
+        advanced=True,
+    )
+    depth_slope: float = param(
+        2.0,
+        label="Depth Slope",
+        help="Follow-surface rule: a sample at planar radius r falls back to the centre when "
+        "its depth differs by more than depth_slope·r (2 follows surfaces tilted up to ~63°)",
+        unit="scene units of depth per scene unit of radius",
+        lo=0.0,
+        ui_hi=1e6,
+        soft=(0.0, 10.0),
+        advanced=True,
+    )
+    truncate: float = param(
+        16.0,
+        label="Truncation",
+        help="Profile truncation radius in units of the profile's shape d (Cycles: 16)",
+        unit="× d",
+        lo=0.0,
+        hi=64.0,
+        lo_open=True,
+        ui_lo=1e-3,
+        advanced=True,
+    )
+    chunk_samples: int = param(
+        1 << 20,
+        help="Upper bound of samples processed in one vectorised batch (memory)",
+        unit="samples",
+        lo=1024,
+        hi=1 << 26,
+        flag="",
+        ui=False,
+    )
 
     def __post_init__(self) -> None:
-        _check_range("eta", self.eta, 0.0, 1.0, lo_open=True)
-        _check_range("target_variance", self.target_variance, 0.0, math.inf, lo_open=True)
-        _check_range("eps_u", self.eps_u, 0.0, 1.0)
-        _check_range("eps_alpha", self.eps_alpha, 0.0, math.inf)
-        _check_range("kappa", self.kappa, 0.0, 1.0)
-        _check_int("beta_min", self.beta_min, 1, MAX_SPP)
-        _check_int("beta_max", self.beta_max, 1, MAX_SPP)
+        validate(self)
         if self.beta_min > self.beta_max:
             raise ParameterError(
                 f"beta_min must be <= beta_max, got beta_min={self.beta_min}, "
                 f"beta_max={self.beta_max}"
             )
-        _check_range("eta_cv", self.eta_cv, 0.0, 1.0, lo_open=True)
-        if self.n_init is not None:
-            _check_int("n_init", self.n_init, 1, MAX_SPP)
-        _check_int("fixed_spp", self.fixed_spp, 1, MAX_SPP)
-        _check_int("reference_spp", self.reference_spp, 1, MAX_SPP)
-        _check_int("seed", self.seed, 0, 2**32 - 1)
-        if self.history_precision not in HISTORY_PRECISIONS:
-            raise ParameterError(
-                f"history_precision must be one of {HISTORY_PRECISIONS}, "
-                f"got {self.history_precision!r}"
-            )
-        _check_range("exposure", self.exposure, 0.0, math.inf, lo_open=True)
-        if self.burley_inverse not in BURLEY_INVERSES:
-            raise ParameterError(
-                f"burley_inverse must be one of {BURLEY_INVERSES}, got {self.burley_inverse!r}"
-            )
-        _check_range("depth_slope", self.depth_slope, 0.0, math.inf)
-        _check_range("truncate", self.truncate, 0.0, 64.0, lo_open=True)
-        _check_int("chunk_samples", self.chunk_samples, 1024, 1 << 26)
 
     @property
     def initial_count(self) -> int:
         """n_init, the mean count assumed without history (default β_min)."""
         return self.beta_min if self.n_init is None else self.n_init
 
-    def replace(self, **changes: Any) -> SSSParams:
-        """Return a copy with ``changes`` applied (and validated)."""
-        return replace(self, **changes)
 
-    def to_dict(self) -> dict[str, Any]:
-        """Plain dictionary of the parameters (for JSON sidecars and reports)."""
-        return asdict(self)
+@dataclass(frozen=True)
+class SeparableParams(_Params):
+    """Parameters of separable SSS (Jimenez et al. 2015; see core.separable).
 
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        """Names of the user-facing parameters, in declaration order."""
-        return tuple(f.name for f in fields(cls))
+    ``terms`` is J, the separable terms of the kernel: the method runs 2J
+    one-dimensional passes of ``taps`` taps.
+    """
+
+    kernel: str = param(
+        "pre_integrated",
+        label="Separable Kernel",
+        help="Kernel of the separable method: pre-integrated, SVD rank 1–4, sum of Gaussians "
+        "or the artist production kernel",
+        choices=KERNELS,
+    )
+    taps: int = param(
+        17,
+        label="Taps",
+        help="Taps per 1D pass of the separable method",
+        choices=TAP_COUNTS,
+    )
+    jitter: bool = param(
+        False,
+        label="Jitter Taps",
+        help="Jitter the taps within the jitter threshold of the kernel's range per pixel "
+        "(against banding)",
+    )
+    jitter_threshold: float = param(
+        JITTER_THRESHOLD,
+        label="Jitter Threshold",
+        help="Share of the kernel range within which taps are jittered (1: all taps)",
+        lo=0.0,
+        hi=1.0,
+        advanced=True,
+    )
+    gaussians: int = param(
+        4,
+        label="Gaussians",
+        help="N of the sum-of-Gaussians kernel (2N one-dimensional passes)",
+        lo=1,
+        hi=6,
+        advanced=True,
+    )
+    grid: int = param(
+        PROFILE_GRID,
+        label="Kernel Grid",
+        help="Cells per side (odd) of the discrete 2D profile the kernels are fitted to",
+        lo=33,
+        hi=513,
+        advanced=True,
+    )
+    follow: str = param(
+        "slope",
+        label="Follow Surface",
+        help="Separable follow-surface rule: the Monte Carlo estimator's depth slope, or the "
+        "supplementary's exponential depth correction",
+        choices=FOLLOW_RULES,
+        advanced=True,
+    )
+    filter: str = param(
+        "nearest",
+        label="Tap Filter",
+        help="How a separable tap reads the image: the nearest pixel, or linear between two",
+        choices=FILTERS,
+        advanced=True,
+    )
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.grid % 2 == 0:
+            raise ParameterError(f"grid must be an odd integer in [33, 513], got {self.grid!r}")
+
+    @property
+    def terms(self) -> int:
+        """J, separable terms (the method runs 2J one-dimensional passes)."""
+        if self.kernel.startswith("svd"):
+            return int(self.kernel[3:])
+        return self.gaussians if self.kernel == "gaussians" else 1

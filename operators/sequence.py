@@ -12,13 +12,20 @@ import traceback
 import bpy
 from bpy.types import Operator
 
-from ..core.io.exr import OutputError, PassError
+from ..core.io.errors import CheckpointError, OutputError, PassError
 from ..core.params import ParameterError
 from ..sss_addon.blender import render
 from ..sss_addon.blender.passes import RenderError
 
 #: Problems the user can fix: reported without a traceback.
-USER_ERRORS = (RenderError, ParameterError, PassError, OutputError, FileExistsError)
+USER_ERRORS = (
+    RenderError,
+    ParameterError,
+    PassError,
+    OutputError,
+    FileExistsError,
+    CheckpointError,
+)
 
 
 def _message(exc: BaseException) -> str:

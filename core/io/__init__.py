@@ -1,1 +1,1 @@
-"""core/io."""
+"""Files: pass and result EXRs, sidecars, atomic writes and checkpoints."""

@@ -1,12 +1,8 @@
 """OpenEXR input and output: Blender pass files, their sidecars, and results.
 
 A *pass file* is the multilayer EXR that Blender writes for one frame, plus a
-sidecar JSON of the same stem (``0003.exr`` + ``0003.json``) that the add-on
-writes beside it with the camera and the subsurface materials::
-
-    {"format": "cvsss-passes/1", "frame": 3, "camera": {...Camera.to_dict()},
-     "materials": [{...MaterialSpec.to_dict()}, ...], "scene_unit_scale": 1.0,
-     "view_layer": "ViewLayer", "engine": "CYCLES"}
+sidecar JSON of the same stem (``0003.exr`` + ``0003.json``, see
+:mod:`.sidecar`) with the camera and the subsurface materials.
 
 Channel names are discovered from the header, never hard-coded. Blender 5
 writes one part per pass (``ViewLayer.Diffuse Direct`` holding channels
@@ -16,8 +12,8 @@ layer prefix is detected; when a file holds several view layers the sidecar's
 ``view_layer`` picks one.
 
 Pixel arrays use the EXR convention of :mod:`cvsss.core.frame`: row 0 is the
-top of the image. Every file is written atomically (temporary file in the
-same folder, fsync, rename), and existing files are only replaced when asked.
+top of the image. Every file is written atomically (:mod:`.atomic`), and
+existing files are only replaced when asked.
 """
 
 from __future__ import annotations
@@ -25,51 +21,38 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import math
 import os
 import re
-import secrets
+import sys
+import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 import OpenEXR
 
-from ..camera import Camera
-from ..frame import Frame, MaterialSpec
-from ..mc.processor import FrameResult
+from ..frame import Frame
+from ..result import FrameResult
+from .atomic import write_files
+from .errors import PassError, exists_error
+from .sidecar import DEFAULT_VIEW_LAYER, make_sidecar, read_sidecar
 
 __all__ = [
     "BACKGROUND_DEPTH_WRITTEN",
-    "DEFAULT_VIEW_LAYER",
     "REQUIRED_PASSES",
-    "SIDECAR_FORMAT",
-    "OutputError",
-    "PassError",
-    "Sidecar",
     "list_frames",
-    "make_folder",
-    "make_sidecar",
     "motion_from_vector",
+    "quiet_native_stderr",
     "read_frame",
     "read_result",
-    "read_sidecar",
     "vector_from_motion",
     "write_passes",
     "write_result",
-    "write_sidecar",
 ]
-
-#: Value of the sidecar's ``format`` field.
-SIDECAR_FORMAT = "cvsss-passes/1"
 
 #: Depth written for background pixels, as Blender does.
 BACKGROUND_DEPTH_WRITTEN = 1e10
-
-#: View layer name used by :func:`write_passes`.
-DEFAULT_VIEW_LAYER = "ViewLayer"
 
 # Canonical pass name -> names it has had in Blender's EXR output.
 _PASS_ALIASES: dict[str, tuple[str, ...]] = {
@@ -125,38 +108,6 @@ _RESERVED_KEYS = frozenset(("method", "frame", *_RESULT_STATS))
 
 _FRAME_NAME = re.compile(r"^(\d+)\.exr$", re.IGNORECASE)
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
-
-
-# -- errors ----------------------------------------------------------------------
-class PassError(ValueError):
-    """An input file cannot be used; the message names the file and the problem."""
-
-
-class OutputError(OSError):
-    """An output file cannot be written; the message names the file and the cause.
-
-    Parameters
-    ----------
-    path : str or PathLike
-        File (or folder) that could not be written.
-    cause : BaseException or str
-        The underlying error; for an ``OSError`` its ``strerror`` is used and
-        its ``errno`` kept.
-    """
-
-    def __init__(self, path: str | os.PathLike, cause: BaseException | str) -> None:
-        if isinstance(cause, OSError) and cause.strerror:
-            reason = cause.strerror
-        else:
-            reason = str(cause) or type(cause).__name__
-        super().__init__(f"cannot write {os.fspath(path)}: {reason}")
-        self.path = Path(path)
-        if isinstance(cause, OSError):
-            self.errno = cause.errno
-
-
-def _exists_error(path: Path) -> FileExistsError:
-    return FileExistsError(f"{path} already exists (use --overwrite to replace it)")
 
 
 # -- motion vectors ------------------------------------------------------------------
@@ -251,6 +202,42 @@ def _open_exr(path: Path) -> OpenEXR.File:
         detail = _decode_failures(warning) or f"{n_parts} of {expected} parts decoded"
         raise PassError(f"{name}: not a readable OpenEXR file (truncated or corrupt: {detail})")
     return exr
+
+
+@contextlib.contextmanager
+def quiet_native_stderr():
+    """Hold back what native code prints on file descriptor 2 inside the block.
+
+    The OpenEXR C library prints one diagnostic line per damaged chunk of a
+    truncated file before the Python bindings raise; the PassError raised
+    for it already says what is wrong, so on error the lines are dropped
+    (one clear message). When the block succeeds they are passed on.
+    """
+    fd = 2  # where C's stderr writes, whatever sys.stderr is
+    try:
+        sys.stderr.flush()
+        saved = os.dup(fd)
+    except (AttributeError, OSError, ValueError):  # no file descriptor 2 (some GUI hosts)
+        yield
+        return
+    failed = False
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), fd)
+            try:
+                yield
+            except BaseException:
+                failed = True
+                raise
+            finally:
+                os.dup2(saved, fd)
+                if not failed:
+                    sink.seek(0)
+                    held = sink.read().decode("utf-8", "replace")
+                    if held:
+                        sys.stderr.write(held)
+    finally:
+        os.close(saved)
 
 
 def _decode_failures(warning: str) -> str:
@@ -381,167 +368,6 @@ def _check_sizes(path: Path, arrays: Mapping[str, np.ndarray]) -> tuple[int, int
         listing = ", ".join(f"{n} {w}x{h}" for n, (h, w) in sizes.items())
         raise PassError(f"{os.fspath(path)}: passes differ in size ({listing})")
     return next(iter(sizes.values()))
-
-
-# -- sidecar ---------------------------------------------------------------------------
-def make_sidecar(
-    camera: Camera,
-    materials: Mapping[int, MaterialSpec] | list[MaterialSpec] = (),
-    *,
-    frame: int | None = None,
-    view_layer: str = DEFAULT_VIEW_LAYER,
-    engine: str = "CYCLES",
-    scene_unit_scale: float = 1.0,
-) -> dict:
-    """The sidecar dictionary that goes next to a pass EXR.
-
-    Parameters
-    ----------
-    camera : Camera
-    materials : mapping slot -> MaterialSpec, or sequence of MaterialSpec
-    frame : int, optional
-        Frame number.
-    view_layer : str
-        Name of the view layer whose passes the EXR holds.
-    engine : str
-        Render engine identifier (``"CYCLES"``, ``"BLENDER_EEVEE_NEXT"``, …).
-    scene_unit_scale : float
-        Blender's unit scale (metres per scene unit), > 0.
-
-    Returns
-    -------
-    dict
-        JSON-serialisable; see the module docstring for the layout.
-    """
-    if not isinstance(camera, Camera):
-        raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
-    specs = list(materials.values()) if isinstance(materials, Mapping) else list(materials)
-    if not (math.isfinite(scene_unit_scale) and scene_unit_scale > 0):
-        raise ValueError(
-            f"scene_unit_scale must be a positive finite number, got {scene_unit_scale}"
-        )
-    data = {"format": SIDECAR_FORMAT}
-    if frame is not None:
-        data["frame"] = int(frame)
-    data.update(
-        {
-            "camera": camera.to_dict(),
-            "materials": [spec.to_dict() for spec in specs],
-            "scene_unit_scale": float(scene_unit_scale),
-            "view_layer": str(view_layer),
-            "engine": str(engine),
-        }
-    )
-    return data
-
-
-@dataclass(frozen=True)
-class Sidecar:
-    """Validated content of a sidecar JSON.
-
-    Attributes
-    ----------
-    camera : Camera
-    materials : dict[int, MaterialSpec]
-    frame : int or None
-    view_layer : str or None
-    engine : str or None
-    scene_unit_scale : float
-    raw : dict
-        The JSON object as read.
-    """
-
-    camera: Camera
-    materials: dict[int, MaterialSpec]
-    frame: int | None
-    view_layer: str | None
-    engine: str | None
-    scene_unit_scale: float
-    raw: dict
-
-
-def read_sidecar(path: str | os.PathLike, exr_path: str | os.PathLike | None = None) -> Sidecar:
-    """Read and validate a sidecar JSON.
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The ``.json`` file.
-    exr_path : str or PathLike, optional
-        The pass EXR it belongs to (only used in the missing-file message).
-
-    Returns
-    -------
-    Sidecar
-
-    Raises
-    ------
-    PassError
-        Missing, unreadable or invalid sidecar; the message names it.
-    """
-    path = Path(path)
-    name = os.fspath(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        where = f" next to {os.fspath(exr_path)}" if exr_path is not None else ""
-        raise PassError(f"{name}: missing camera sidecar{where}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-        raise PassError(f"{name}: cannot read camera sidecar ({reason})") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise PassError(f"{name}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise PassError(f"{name}: expected a JSON object, got {type(data).__name__}")
-    fmt = data.get("format")
-    if fmt != SIDECAR_FORMAT:
-        raise PassError(f"{name}: unsupported format {fmt!r} (expected {SIDECAR_FORMAT!r})")
-    if not isinstance(data.get("camera"), dict):
-        raise PassError(f"{name}: missing or invalid 'camera' object")
-    try:
-        camera = Camera.from_dict(data["camera"])
-    except (TypeError, ValueError) as exc:
-        raise PassError(f"{name}: invalid camera ({exc})") from None
-    raw_materials = data.get("materials", [])
-    if not isinstance(raw_materials, list):
-        raise PassError(f"{name}: 'materials' must be a list")
-    materials: dict[int, MaterialSpec] = {}
-    for i, entry in enumerate(raw_materials):
-        try:
-            if not isinstance(entry, dict):
-                raise TypeError(f"expected an object, got {type(entry).__name__}")
-            spec = MaterialSpec.from_dict(entry)
-        except (KeyError, TypeError, ValueError) as exc:
-            detail = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
-            raise PassError(f"{name}: invalid material #{i} ({detail})") from None
-        if spec.slot in materials:
-            raise PassError(f"{name}: material slot {spec.slot} is listed twice")
-        materials[spec.slot] = spec
-    frame = data.get("frame")
-    if frame is not None and (isinstance(frame, bool) or not isinstance(frame, int)):
-        raise PassError(f"{name}: 'frame' must be an integer, got {frame!r}")
-    scale = data.get("scene_unit_scale", 1.0)
-    if (
-        isinstance(scale, bool)
-        or not isinstance(scale, int | float)
-        or not (math.isfinite(scale) and scale > 0)
-    ):
-        raise PassError(f"{name}: 'scene_unit_scale' must be a positive number, got {scale!r}")
-    view_layer = data.get("view_layer")
-    if view_layer is not None and not isinstance(view_layer, str):
-        raise PassError(f"{name}: 'view_layer' must be a string, got {view_layer!r}")
-    engine = data.get("engine")
-    return Sidecar(
-        camera=camera,
-        materials=materials,
-        frame=frame,
-        view_layer=view_layer,
-        engine=None if engine is None else str(engine),
-        scene_unit_scale=float(scale),
-        raw=data,
-    )
 
 
 # -- public readers ---------------------------------------------------------------------
@@ -725,142 +551,6 @@ def list_frames(directory: str | os.PathLike) -> list[tuple[int, Path]]:
     return sorted(frames.items())
 
 
-# -- atomic output ------------------------------------------------------------------------
-class _Staged:
-    """A temporary file beside ``path`` that becomes ``path`` on commit."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.temp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
-        fd = os.open(
-            self.temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666
-        )
-        self.stream: IO[bytes] = os.fdopen(fd, "wb")
-
-    def finish(self) -> None:
-        """Flush the data to disk and close the temporary file."""
-        self.stream.flush()
-        os.fsync(self.stream.fileno())
-        self.stream.close()
-
-    def commit(self, overwrite: bool) -> None:
-        """Move the temporary file to its final name."""
-        if overwrite:
-            os.replace(self.temp, self.path)
-        else:
-            try:
-                # A hard link fails if the name is taken, unlike rename.
-                os.link(self.temp, self.path)
-            except FileExistsError:
-                raise _exists_error(self.path) from None
-            except OSError:
-                # No hard links on this file system: check, then rename.
-                if self.path.exists():
-                    raise _exists_error(self.path) from None
-                os.replace(self.temp, self.path)
-            else:
-                os.unlink(self.temp)
-        _fsync_dir(self.path.parent)
-
-    def discard(self) -> None:
-        """Remove the temporary file if it is still there."""
-        with contextlib.suppress(OSError):
-            self.stream.close()
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.temp)
-
-
-def _fsync_dir(directory: Path) -> None:
-    # Makes the rename durable; not possible on every platform (Windows).
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(files: list[tuple[Path, object]], overwrite: bool) -> None:
-    """Write several files so that each appears complete or not at all.
-
-    ``files`` pairs a final path with an ``OpenEXR.File`` or ``bytes``. All
-    temporary files are written and synced before the first is renamed; on
-    failure every temporary file is removed, as is any file this call had
-    already put in place.
-
-    Raises
-    ------
-    FileExistsError
-        A final name exists and ``overwrite`` is false.
-    OutputError
-        The folder or a file cannot be written (the cause is in the message).
-    """
-    if not overwrite:
-        for path, _ in files:
-            if path.exists():
-                raise _exists_error(path)
-    for folder in dict.fromkeys(path.parent for path, _ in files):
-        make_folder(folder)
-    staged: list[_Staged] = []
-    created: list[Path] = []
-    current = files[0][0]
-    try:
-        for path, content in files:
-            current = path
-            stage = _Staged(path)
-            staged.append(stage)
-            if isinstance(content, bytes):
-                stage.stream.write(content)
-            else:
-                content.write(stage.stream)
-            stage.finish()
-        for stage in staged:
-            current = stage.path
-            existed = stage.path.exists()
-            stage.commit(overwrite)
-            if not existed:
-                created.append(stage.path)
-    except FileExistsError:
-        # Only the no-clobber commit raises this: another writer got there first.
-        _undo(created)
-        raise
-    except (OSError, RuntimeError) as exc:
-        _undo(created)
-        raise OutputError(current, exc) from exc
-    except BaseException:
-        _undo(created)
-        raise
-    finally:
-        for stage in staged:
-            stage.discard()
-
-
-def make_folder(folder: Path) -> None:
-    """Create ``folder`` and its parents, or raise OutputError naming the culprit."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError) as exc:
-        # Some part of the path is a file: name it rather than "File exists".
-        for ancestor in (folder, *folder.parents):
-            if ancestor.exists():
-                if not ancestor.is_dir():
-                    raise OutputError(ancestor, "not a folder") from exc
-                break
-        raise OutputError(folder, exc) from exc
-    except OSError as exc:
-        raise OutputError(folder, exc) from exc
-
-
-def _undo(created: list[Path]) -> None:
-    for path in created:
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-
-
 # -- writers ------------------------------------------------------------------------------
 def _as_output(path: str | os.PathLike) -> Path:
     path = Path(path)
@@ -956,35 +646,9 @@ def write_passes(
     if not overwrite:
         for target in (path, path.with_suffix(".json")):
             if target.exists():
-                raise _exists_error(target)
+                raise exists_error(target)
     # The sidecar goes first so a pass EXR never appears without it.
-    _write_atomic([(path.with_suffix(".json"), text), (path, exr)], overwrite)
-
-
-def write_sidecar(path: str | os.PathLike, sidecar: Mapping, overwrite: bool = False) -> None:
-    """Write a sidecar dictionary (see :func:`make_sidecar`) as JSON, atomically.
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The ``.json`` file (the pass EXR's path with suffix ``.json``).
-    sidecar : mapping
-    overwrite : bool
-
-    Raises
-    ------
-    FileExistsError, OutputError
-        As for :func:`write_passes`.
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".json":
-        raise ValueError(f"sidecar file must end in .json, got {os.fspath(path)!r}")
-    if sidecar.get("format") != SIDECAR_FORMAT:
-        raise ValueError(
-            f"sidecar format must be {SIDECAR_FORMAT!r}, got {sidecar.get('format')!r}"
-        )
-    text = (json.dumps(dict(sidecar), indent=2) + "\n").encode("utf-8")
-    _write_atomic([(path, text)], overwrite)
+    write_files([(path.with_suffix(".json"), text), (path, exr)], overwrite)
 
 
 def _result_array(result: FrameResult, field: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -1055,4 +719,4 @@ def write_result(
         else:
             for i, c in enumerate(comps):
                 channels[f"{layer}.{c}"] = np.ascontiguousarray(array[..., i])
-    _write_atomic([(path, OpenEXR.File(header, channels))], overwrite)
+    write_files([(path, OpenEXR.File(header, channels))], overwrite)

@@ -125,8 +125,10 @@ def cv_coefficient(
 
     Returns
     -------
-    (P,) float64 α; where ḡ <= 0 the bound is taken as [0, 1] (α then does
-    not matter: Res = f̄).
+    (P,) float64 α. Where ḡ <= 0 the bound is taken as [0, 1] (α then does
+    not matter: Res = f̄). A negative f̄ (the estimator's centre control lets
+    Î dip below 0) narrows D to [0, (f̄ + ḡ)/ḡ] as SPEC §7 states; when
+    f̄ < −ḡ the bound is empty and α = 0 (Res = f̄).
     """
     s_xy = np.asarray(s_xy, dtype=np.float64)
     s_yy = np.asarray(s_yy, dtype=np.float64)
@@ -134,7 +136,7 @@ def cv_coefficient(
         num = s_xy + eps_alpha
         den = s_yy + eps_alpha
         alpha = np.where(den > 0, num / den, 1.0)
-        upper = np.where(g_bar > 0, (np.maximum(f_bar, 0.0) + g_bar) / g_bar, 1.0)
+        upper = np.where(g_bar > 0, np.maximum((f_bar + g_bar) / g_bar, 0.0), 1.0)
     # A bound or ratio that overflowed (ḡ subnormal, Σ_yy tiny) is capped at
     # the largest float so α stays finite (and Res = f̄ − α·G with it).
     big = np.finfo(np.float64).max

@@ -29,141 +29,14 @@ out contiguously, processed in bounded batches, and summed back with
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
+from ..geometry import Geometry
 from ..profiles.base import Profile
 from ..sampling.sequence import pixel_hashes, r2_points_fixed
 
 TWO_PI = 2.0 * np.pi
-
-
-@dataclass
-class Geometry:
-    """Per-frame quantities of the SSS pixels that do not depend on sampling.
-
-    All per-pixel arrays have leading length P (number of SSS pixels), in
-    row-major order of the image.
-
-    Attributes
-    ----------
-    shape : (H, W)
-    index : (P,) int64, flat pixel index ``y·W + x``
-    x, y : (P,) int64, column and row
-    mat : (P,) int32, material slot
-    depth : (P,) float64, scene units
-    fw, fh : (P,) float64, pixel footprint, scene units per pixel
-    r0 : (P,) float64, direct-scattering radius, scene units
-    gamma : (P, 3) float64, distant energy ratio per channel
-    weight_scale : (P, 3) float64, γ_c / (distant mass of channel c)
-    lo, hi : (P, 3) float64, sampling bounds in the profile's u-space
-    chromatic : (P,) bool, the slot's channels have different profiles
-    """
-
-    shape: tuple[int, int]
-    index: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    mat: np.ndarray
-    depth: np.ndarray
-    fw: np.ndarray
-    fh: np.ndarray
-    r0: np.ndarray
-    gamma: np.ndarray
-    weight_scale: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-    chromatic: np.ndarray
-
-    @cached_property
-    def gamma_sum(self) -> np.ndarray:
-        """(P,) Σ_c γ_c."""
-        return self.gamma.sum(axis=1)
-
-    @cached_property
-    def cum(self) -> np.ndarray:
-        """(P, 2) cumulative channel-selection probabilities γ_c/Σγ (R, R+G)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            pi = self.gamma / self.gamma_sum[:, None]
-        return np.nan_to_num(np.cumsum(pi, axis=1)[:, :2])
-
-    @cached_property
-    def top(self) -> np.ndarray:
-        """(P,) channel with the largest γ (fallback when rounding picks an empty one)."""
-        return np.argmax(self.gamma, axis=1)
-
-    @property
-    def size(self) -> int:
-        return int(self.index.shape[0])
-
-    @property
-    def gamma_max(self) -> np.ndarray:
-        """(P,) largest γ over channels (the ε_u test of P Eq. 18)."""
-        return self.gamma.max(axis=1) if self.size else np.zeros(0)
-
-    def mask(self) -> np.ndarray:
-        """(H, W) bool mask of the SSS pixels."""
-        m = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
-        m[self.index] = True
-        return m.reshape(self.shape)
-
-    def to_image(self, values: np.ndarray, fill: float = 0.0, dtype=np.float32) -> np.ndarray:
-        """Scatter (P, ...) values into an (H, W, ...) image, ``fill`` elsewhere."""
-        values = np.asarray(values)
-        if np.dtype(dtype).kind == "f" and values.dtype.kind == "f":
-            big = np.finfo(dtype).max
-            values = np.clip(values, -big, big)
-        out = np.full((self.shape[0] * self.shape[1], *values.shape[1:]), fill, dtype=dtype)
-        out[self.index] = values
-        return out.reshape(*self.shape, *values.shape[1:])
-
-
-def prepare(depth: np.ndarray, material: np.ndarray, camera, profile: Profile) -> Geometry:
-    """Find the SSS pixels and their footprint, r0, γ and sampling bounds.
-
-    Parameters
-    ----------
-    depth : (H, W) float, planar depth in scene units, inf = background
-    material : (H, W) int, slot (0 = no SSS)
-    camera : core.camera.Camera
-    profile : core.profiles.Profile
-
-    Returns
-    -------
-    Geometry
-    """
-    h, w = depth.shape
-    mat_flat = material.reshape(-1)
-    depth_flat = depth.reshape(-1)
-    scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
-    scatters[: profile.n_slots] = profile.scatters()
-    in_table = (mat_flat > 0) & (mat_flat < profile.n_slots)
-    ok = in_table & np.isfinite(depth_flat)
-    ok[ok] = scatters[mat_flat[ok]]
-    index = np.flatnonzero(ok).astype(np.int64)
-    mat = mat_flat[index].astype(np.int32)
-    z = depth_flat[index].astype(np.float64)
-    fw, fh = camera.footprint(z)
-    r0 = 0.5 * np.sqrt(fw * fw + fh * fh)
-    region = profile.region(r0, mat)
-    y, x = np.divmod(index, w)
-    return Geometry(
-        shape=(h, w),
-        index=index,
-        x=x,
-        y=y,
-        mat=mat,
-        depth=z,
-        fw=fw,
-        fh=fh,
-        r0=r0,
-        gamma=region.gamma,
-        weight_scale=region.weight_scale,
-        lo=region.lo,
-        hi=region.hi,
-        chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
-    )
 
 
 @dataclass
@@ -199,7 +72,6 @@ def estimate_distant(
     geom: Geometry,
     lighting: np.ndarray,
     depth: np.ndarray,
-    material: np.ndarray,
     profile: Profile,
     counts: np.ndarray,
     *,
@@ -212,11 +84,10 @@ def estimate_distant(
 
     Parameters
     ----------
-    geom : Geometry from :func:`prepare`
+    geom : Geometry from :func:`core.geometry.prepare`
     lighting : (H, W, 3) float32, B (linear)
     depth : (H, W) float, planar depth, scene units
-    material : (H, W) int, slot
-    profile : Profile
+    profile : Profile (over the compact slots of ``geom``)
     counts : (P,) int, samples per SSS pixel (0 = direct only)
     frame, seed : int, select the per-pixel R2 offsets
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
@@ -229,7 +100,7 @@ def estimate_distant(
     h, w = geom.shape
     light = lighting.reshape(-1, 3)
     depth_flat = depth.reshape(-1)
-    mat_flat = material.reshape(-1)
+    mat_flat = geom.slots
     distant = geom.gamma * light[geom.index].astype(np.float64)
     counts = np.asarray(counts, dtype=np.int64)
     gsum = geom.gamma_sum

@@ -32,9 +32,6 @@ float32 storage is never scaled.
 
 from __future__ import annotations
 
-import contextlib
-import io
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -162,6 +159,12 @@ class History:
             v[nan] = 0.0  # ... and is stored as 0
         self.buffers[name].reshape(-1)[index] = v.astype(self.dtype)
 
+    def mask_of(self, index: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(H, W) bool image: ``values`` at flat ``index``, False elsewhere."""
+        out = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
+        out[index] = values
+        return out.reshape(self.shape)
+
     def nbytes(self) -> int:
         """Bytes held by the per-pixel buffers (history storage cost)."""
         return sum(b.nbytes for b in self.buffers.values())
@@ -275,31 +278,3 @@ class History:
             material=get("material"),
             depth=get("depth"),
         )
-
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the history atomically as a compressed ``.npz`` checkpoint.
-
-        The data goes to a temporary file beside ``path`` that is synced and
-        renamed, so ``path`` holds either the previous or the new checkpoint,
-        never a partial one; the temporary file is removed on failure.
-        """
-        path = os.fspath(path)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **self.to_arrays())
-        tmp = f"{path}.tmp-{os.getpid()}"
-        try:
-            with open(tmp, "wb") as fh:
-                fh.write(buf.getvalue())
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-
-    @classmethod
-    def load(cls, path: str | os.PathLike) -> History:
-        """Read a checkpoint written by :meth:`save`."""
-        with np.load(os.fspath(path), allow_pickle=False) as data:
-            return cls.from_arrays(data)

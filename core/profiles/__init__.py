@@ -4,7 +4,7 @@ from .artist import ArtistProfile
 from .base import Profile, Region
 from .burley import BurleyProfile, blender_shape
 from .dipole import DipoleProfile
-from .factory import PROFILE_NAMES, MixedProfile, ProfileChoice, make_profile_factory
+from .factory import PROFILE_NAMES, MixedProfile, ProfileCache, ProfileChoice
 
 __all__ = [
     "PROFILE_NAMES",
@@ -13,8 +13,8 @@ __all__ = [
     "DipoleProfile",
     "MixedProfile",
     "Profile",
+    "ProfileCache",
     "ProfileChoice",
     "Region",
     "blender_shape",
-    "make_profile_factory",
 ]

@@ -36,12 +36,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..params import ParameterError
+from ..geometry import compact_materials
+from ..params import ParameterError, param, validate
 from . import presets
 from .artist import ArtistProfile, from_radial
 from .base import Profile, Region
@@ -58,33 +59,46 @@ class ProfileError(ParameterError):
 
 @dataclass(frozen=True)
 class ProfileChoice:
-    """A global profile / material choice applied to every SSS material slot.
+    """A global profile / measured-material choice applied to every SSS material slot.
 
-    Attributes
-    ----------
-    profile : {"burley", "dipole", "artist"} or None
-        Profile for every slot; None keeps each material's own.
-    material : str or None
-        Measured preset for every slot (None: keep the materials' options).
-    slot_materials : tuple of (slot, preset) pairs
-        Presets for given slots (override ``material``).
-    mm_per_unit : float
-        Millimetres per scene unit for presets (1000: metres), > 0.
-    scale : float
-        Artist scale of the presets' scattering distances, > 0.
+    ``slot_materials`` pairs Material Index values with presets (they override
+    ``material``); ``parse_material`` reads the command line's ``--material``.
     """
 
-    profile: str | None = None
-    material: str | None = None
+    profile: str | None = param(
+        None,
+        label="Profile",
+        help="Diffusion profile of every SSS material (default: each material's own, Burley "
+        "from its Principled BSDF)",
+        choices=PROFILE_NAMES,
+    )
+    material: str | None = param(
+        None,
+        help="Measured material for every SSS material, or per Material Index (1=skin1,"
+        "2=marble): " + ", ".join(presets.names()),
+        flag="",  # --material is parsed by the command line (SLOT=PRESET pairs)
+        ui=False,  # in Blender: each material's Subsurface (cvsss) preset
+    )
     slot_materials: tuple[tuple[int, str], ...] = ()
-    mm_per_unit: float = MM_PER_METRE
-    scale: float = 1.0
+    mm_per_unit: float = param(
+        MM_PER_METRE,
+        help="Millimetres per scene unit for measured materials (1000: metres)",
+        unit="mm",
+        lo=0.0,
+        lo_open=True,
+        ui=False,  # in Blender: from the scene's unit scale
+    )
+    scale: float = param(
+        1.0,
+        help="Artist scale of the measured materials' scattering distances (1: real size)",
+        lo=0.0,
+        lo_open=True,
+        flag="preset-scale",
+        ui=False,  # in Blender: each material's Preset Scale
+    )
 
     def __post_init__(self) -> None:
-        if self.profile is not None and self.profile not in PROFILE_NAMES:
-            raise ValueError(
-                f"profile must be one of {', '.join(PROFILE_NAMES)}, got {self.profile!r}"
-            )
+        validate(self)
         if self.material is not None:
             object.__setattr__(self, "material", presets.get(self.material).name)
         pairs = []
@@ -120,6 +134,16 @@ class ProfileChoice:
     @property
     def is_default(self) -> bool:
         return self.profile is None and self.material is None and not self.slot_materials
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (run signatures)."""
+        return {
+            "profile": self.profile,
+            "material": self.material,
+            "slot_materials": [list(p) for p in self.slot_materials],
+            "mm_per_unit": self.mm_per_unit,
+            "scale": self.scale,
+        }
 
     def apply(self, materials: Mapping[int, object]) -> dict[int, object]:
         """Materials (slot → MaterialSpec) with this choice applied."""
@@ -297,30 +321,47 @@ def build_profile(
 
 
 def frame_profile(frame, params, choice: ProfileChoice | None = None) -> Profile:
-    """The profile of a frame's materials (after ``choice``), with SSSParams' Burley options."""
+    """The profile of a frame's materials (after ``choice``) over their compact slots.
+
+    Slots are numbered as :func:`core.geometry.compact_slots` numbers them, so
+    the profile's tables grow with the number of materials, not with the
+    largest Material Index.
+    """
     materials = (
         frame.materials if choice is None or choice.is_default else choice.apply(frame.materials)
     )
-    n = int(frame.material.max(initial=0)) + 1
+    compact = compact_materials(materials)
     return build_profile(
-        materials, n, truncate=params.truncate, burley_inverse=params.burley_inverse
+        compact, len(compact) + 1, truncate=params.truncate, burley_inverse=params.burley_inverse
     )
 
 
-class ProfileFactory:
-    """``profile_factory`` of :class:`~cvsss.core.mc.processor.SequenceProcessor` for a choice.
+class ProfileCache:
+    """The profile of each frame, rebuilt only when the material table changes.
 
-    Its repr names the choice (stable across runs: used in resume signatures).
+    Parameters
+    ----------
+    params : SSSParams (truncation, Burley sampler)
+    choice : ProfileChoice or None
     """
 
-    def __init__(self, choice: ProfileChoice | None = None):
+    def __init__(self, params, choice: ProfileChoice | None = None):
+        self.params = params
         self.choice = choice
+        self._key = None
+        self._profile: Profile | None = None
 
-    def __call__(self, frame, params) -> Profile:
-        return frame_profile(frame, params, self.choice)
-
-    def __repr__(self) -> str:
-        return f"ProfileFactory({self.choice!r})"
+    def get(self, frame) -> Profile:
+        key = tuple(
+            sorted(
+                (k, v.d, v.profile, repr(sorted(v.options.items())))
+                for k, v in frame.materials.items()
+            )
+        )
+        if key != self._key:
+            self._profile = frame_profile(frame, self.params, self.choice)
+            self._key = key
+        return self._profile
 
 
 def check_materials(
@@ -338,11 +379,6 @@ def check_materials(
     if choice is not None and not choice.is_default:
         materials = choice.apply(materials)
     build_profile(materials, 1, truncate=truncate)
-
-
-def make_profile_factory(choice: ProfileChoice | None = None) -> Callable:
-    """A ``profile_factory`` for :class:`~cvsss.core.mc.processor.SequenceProcessor`."""
-    return ProfileFactory(choice)
 
 
 class MixedProfile(Profile):

@@ -6,7 +6,7 @@ from bpy.types import Panel
 
 from ...core.methods import METHODS
 from . import materials as sss_materials
-from .properties import QUALITY_METHODS
+from .properties import QUALITY_METHODS, param_properties
 
 
 class SSS_PT_render(Panel):
@@ -57,6 +57,12 @@ class SSS_PT_render(Panel):
         sub.prop(s, "eps_alpha")
 
         col = layout.column(align=True)
+        col.active = s.method == "separable"
+        col.prop(s, "separable_kernel")
+        col.prop(s, "separable_taps")
+        col.prop(s, "separable_jitter")
+
+        col = layout.column(align=True)
         row = col.row()
         row.prop(s, "fixed_spp")
         row.active = s.method == "fixed"
@@ -95,6 +101,31 @@ class SSS_PT_render(Panel):
             box.label(text=f"PSNR: {s.last_psnr:.2f} dB" if s.last_psnr > 0 else "PSNR: –")
         else:
             box.label(text="No frame processed yet")
+
+
+class SSS_PT_render_advanced(Panel):
+    """Every parameter the command line takes that the main panel does not show."""
+
+    bl_label = "Advanced"
+    bl_idname = "SSS_PT_render_advanced"
+    bl_parent_id = "SSS_PT_render"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        s = context.scene.sss_settings
+        layout.prop(s, "profile")
+        col = layout.column(align=True)
+        for name, (_, _, spec) in param_properties().items():
+            if spec.advanced:
+                row = col.row()
+                row.prop(s, name)
+                row.active = not name.startswith("separable_") or s.method == "separable"
 
 
 class SSS_PT_material(Panel):
@@ -141,5 +172,5 @@ class SSS_PT_material(Panel):
                 layout.label(text="Preset d: R {:.5g}  G {:.5g}  B {:.5g}".format(*d))
 
 
-classes = (SSS_PT_render, SSS_PT_material)
+classes = (SSS_PT_render, SSS_PT_render_advanced, SSS_PT_material)
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -22,7 +22,6 @@ depth, which EEVEE writes as the clip end, becomes 1e10 as in Cycles.
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -33,7 +32,10 @@ import OpenEXR
 
 from ...core.camera import Camera
 from ...core.frame import MaterialSpec
-from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN, OutputError, make_sidecar, write_sidecar
+from ...core.io.atomic import commit, temp_path
+from ...core.io.errors import OutputError
+from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN
+from ...core.io.sidecar import make_sidecar, write_sidecar
 from . import materials as sss_materials
 
 
@@ -366,7 +368,8 @@ def render_frame(
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
     write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
-    temp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.exr")
+    # Blender picks the format from the extension: the temporary name keeps it.
+    temp = temp_path(path, keep_suffix=True)
     scene.render.filepath = str(temp)
     try:
         _render_still(scene)
@@ -374,10 +377,7 @@ def render_frame(
             raise OutputError(temp, "Blender wrote no file (check the output folder)")
         if scene.render.engine != "CYCLES":
             aov_to_material_index(temp, view_layer.name, sidecar["camera"]["clip_end"])
-        try:
-            os.replace(temp, path)
-        except OSError as exc:
-            raise OutputError(path, exc) from exc
+        commit(temp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
             temp.unlink()

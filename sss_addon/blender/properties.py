@@ -1,14 +1,16 @@
 """Scene and material settings of the add-on, and their one mapping to SSSParams.
 
-``scene.sss_settings`` holds the algorithm parameters (defaults: the paper's,
-from :data:`core.params.PAPER_DEFAULTS` and :class:`core.params.SSSParams`),
-the run settings (method, engine, output folder, frame range) and the
-statistics of the last processed frame. ``material.sss_material`` says whether
-a material takes part and how its Burley shape ``d`` is obtained.
+``scene.sss_settings`` holds the algorithm parameters, the run settings
+(method, engine, output folder, frame range) and the statistics of the last
+processed frame. ``material.sss_material`` says whether a material takes part
+and how its Burley shape ``d`` is obtained.
 
-Every limit below mirrors the check in ``SSSParams.__post_init__`` so the UI
-cannot produce a value the core refuses; ``settings_to_params`` builds the
-object the operators and the command line pass to the core.
+The parameter properties are generated from the specs of core.params
+(SSSParams, ProfileChoice, SeparableParams: label, help, unit, range and
+default live with each field), so the UI cannot produce a value the core
+refuses and shows every parameter the command line takes;
+``settings_to_params`` and ``settings_to_options`` build the objects the
+operators pass to the core.
 """
 
 import math
@@ -26,11 +28,10 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
-from ...core.methods import METHODS, enum_items
-from ...core.params import MAX_SPP, PAPER_DEFAULTS, ParameterError, SSSParams
+from ...core.methods import METHODS, MethodOptions, enum_items
+from ...core.params import MAX_SPP, ParameterError, SeparableParams, SSSParams, specs
 from ...core.profiles import presets
-
-_DEFAULTS = SSSParams()
+from ...core.profiles.factory import ProfileChoice
 
 #: Measured materials of the separable-SSS supplementary (seeds/004 section G).
 PRESET_NAMES = presets.names()
@@ -92,6 +93,83 @@ def _end_changed(self, _context) -> None:
         self.frame_start = self.frame_end
 
 
+# -- properties generated from the parameter specs of core.params ---------------------
+#: (dataclass, property prefix): every field with ``Spec.ui`` becomes ``prefix + name``.
+PARAM_GROUPS = ((SSSParams, ""), (ProfileChoice, ""), (SeparableParams, "separable_"))
+
+#: Enum identifier standing for ``None`` (ProfileChoice.profile: each material's own).
+PER_MATERIAL = "MATERIAL"
+
+#: Extra keywords of generated properties (update callbacks keeping ranges ordered).
+_EXTRA = {
+    "beta_min": {"update": _beta_min_changed},
+    "beta_max": {"update": _beta_max_changed},
+}
+
+
+def _limit(value, fallback):
+    return fallback if value is None else value
+
+
+def _param_property(f, spec):
+    """The bpy property of one parameter field, from its Spec."""
+    name = spec.label or f.name.replace("_", " ").title()
+    description = spec.describe()
+    default = f.default
+    extra = _EXTRA.get(f.name, {})
+    if spec.choices is not None:
+        items = [(str(c), str(c).replace("_", " ").title(), f"{name}: {c}") for c in spec.choices]
+        if default is None:
+            items.insert(0, (PER_MATERIAL, "Per Material", "Each material's own (Principled BSDF)"))
+        return EnumProperty(
+            name=name,
+            description=description,
+            items=items,
+            default=PER_MATERIAL if default is None else str(default),
+            **extra,
+        )
+    if f.type in ("bool", bool):
+        return BoolProperty(name=name, description=description, default=default, **extra)
+    soft = spec.soft or (None, None)
+    if f.type in ("int", "int | None"):
+        lo = int(_limit(spec.ui_lo, _limit(spec.lo, -_INT_MAX)))
+        hi = int(min(_limit(spec.ui_hi, _limit(spec.hi, _INT_MAX)), _INT_MAX))
+        return IntProperty(
+            name=name,
+            description=description,
+            default=default,
+            min=lo,
+            max=hi,
+            soft_min=int(_limit(soft[0], lo)),
+            soft_max=int(_limit(soft[1], hi)),
+            **extra,
+        )
+    lo = float(_limit(spec.ui_lo, _limit(spec.lo, -1e30)))
+    hi = float(_limit(spec.ui_hi, _limit(spec.hi, 1e30)))
+    return FloatProperty(
+        name=name,
+        description=description,
+        default=default,
+        min=lo,
+        max=hi,
+        soft_min=float(_limit(soft[0], lo)),
+        soft_max=float(_limit(soft[1], hi)),
+        precision=spec.precision,
+        step=1,
+        **extra,
+    )
+
+
+def param_properties() -> dict[str, tuple]:
+    """``{property name: (dataclass, field, spec)}`` of every generated property."""
+    out = {}
+    for cls, prefix in PARAM_GROUPS:
+        for f, spec in specs(cls):
+            if spec.ui:
+                out[prefix + f.name] = (cls, f, spec)
+    return out
+
+
 class SSSSettings(PropertyGroup):
     """Parameters and run settings of screen-space subsurface scattering (per scene)."""
 
@@ -112,121 +190,6 @@ class SSSSettings(PropertyGroup):
         get=_get_cv_mode,
         set=_set_cv_mode,
     )
-
-    # -- adaptive sampling (SPVG) ------------------------------------------------------
-    eta: FloatProperty(
-        name="η (History Rate)",
-        description=(
-            "Exponential moving coefficient of the per-pixel sample-count history, in (0, 1]. "
-            "Larger reacts faster to change, smaller smooths more"
-        ),
-        default=PAPER_DEFAULTS["eta"],
-        min=1e-6,
-        max=1.0,
-        soft_min=0.01,
-        soft_max=1.0,
-        step=1,
-        precision=3,
-    )
-    target_variance: FloatProperty(
-        name="σ0² (Target Variance)",
-        description=(
-            "Target variance of the tracked distant-scattering luminance (exposure-scaled, "
-            "linear; units of luminance²). Smaller means more samples and higher quality"
-        ),
-        default=PAPER_DEFAULTS["target_variance"],
-        min=1e-12,
-        max=1e6,
-        soft_min=1e-6,
-        soft_max=1e-2,
-        step=0.001,
-        precision=6,
-    )
-    eps_u: FloatProperty(
-        name="ε_u (Distant Cutoff)",
-        description=(
-            "Pixels whose largest distant-scattering energy ratio γ is below this get no "
-            "samples (unitless, in [0, 1])"
-        ),
-        default=PAPER_DEFAULTS["eps_u"],
-        min=0.0,
-        max=1.0,
-        soft_max=0.2,
-        step=0.1,
-        precision=4,
-    )
-    eps_alpha: FloatProperty(
-        name="ε_α (CV Suppression)",
-        description=(
-            "Suppressing constant of the control-variate coefficient, >= 0 (luminance²); "
-            "damps jitter-driven overestimates and gives α = 1 when both moments vanish"
-        ),
-        default=PAPER_DEFAULTS["eps_alpha"],
-        min=0.0,
-        max=1e6,
-        soft_max=1e-2,
-        step=0.001,
-        precision=6,
-    )
-    kappa: FloatProperty(
-        name="κ (Correction Weight)",
-        description="Weight of the SPVG correction term, in [0, 1] (unitless)",
-        default=PAPER_DEFAULTS["kappa"],
-        min=0.0,
-        max=1.0,
-        step=1,
-        precision=3,
-    )
-    beta_min: IntProperty(
-        name="β min",
-        description="Smallest adaptive sample count per SSS pixel (samples, 1 to 4096)",
-        default=PAPER_DEFAULTS["beta_min"],
-        min=1,
-        max=MAX_SPP,
-        soft_max=256,
-        update=_beta_min_changed,
-    )
-    beta_max: IntProperty(
-        name="β max",
-        description="Largest adaptive sample count per SSS pixel (samples, 1 to 4096)",
-        default=PAPER_DEFAULTS["beta_max"],
-        min=1,
-        max=MAX_SPP,
-        soft_max=1024,
-        update=_beta_max_changed,
-    )
-    eta_cv: FloatProperty(
-        name="η_cv (Covariance Rate)",
-        description=(
-            "Exponential moving coefficient of the control-variate covariance history, "
-            "in (0, 1]. The paper uses 1e-6 (a very long memory)"
-        ),
-        default=PAPER_DEFAULTS["eta_cv"],
-        min=1e-9,
-        max=1.0,
-        soft_min=1e-6,
-        soft_max=0.5,
-        step=0.001,
-        precision=6,
-    )
-
-    # -- other methods -------------------------------------------------------------------
-    fixed_spp: IntProperty(
-        name="Fixed Samples",
-        description="Samples per pixel of the Fixed N method (1 to 4096)",
-        default=_DEFAULTS.fixed_spp,
-        min=1,
-        max=MAX_SPP,
-        soft_max=1024,
-    )
-    reference_spp: IntProperty(
-        name="Reference Samples",
-        description="Samples per pixel of the reference used for PSNR (1 to 4096)",
-        default=_DEFAULTS.reference_spp,
-        min=1,
-        max=MAX_SPP,
-        soft_min=16,
-    )
     use_reference: BoolProperty(
         name="Compute PSNR",
         description=(
@@ -235,32 +198,8 @@ class SSSSettings(PropertyGroup):
         ),
         default=True,
     )
-    seed: IntProperty(
-        name="Seed",
-        description="Seed of the per-pixel random sequence; the same seed gives identical output",
-        default=_DEFAULTS.seed,
-        min=0,
-        max=_INT_MAX,
-    )
-    history_precision: EnumProperty(
-        name="History Precision",
-        description="Storage of the per-pixel history",
-        items=(
-            ("float32", "Float32", "32-bit floats (default)"),
-            ("float16", "Float16", "16-bit floats, like the paper's RGBA16F render targets"),
-        ),
-        default=_DEFAULTS.history_precision,
-    )
-    exposure: FloatProperty(
-        name="Exposure",
-        description="Linear scale applied before tracking luminance and computing PSNR (> 0)",
-        default=_DEFAULTS.exposure,
-        min=1e-6,
-        max=1e6,
-        soft_min=0.01,
-        soft_max=100.0,
-        precision=3,
-    )
+
+    # -- quality knob --------------------------------------------------------------------
     quality: EnumProperty(
         name="Quality",
         description=(
@@ -317,8 +256,12 @@ class SSSSettings(PropertyGroup):
         subtype="DIR_PATH",
     )
     overwrite: BoolProperty(
-        name="Overwrite Passes",
-        description="Render pass frames again even if their files exist (otherwise they are reused)",
+        name="Overwrite",
+        description=(
+            "Render pass frames again even if their files exist and start the post-process "
+            "over (otherwise passes are reused and the post-process resumes where a run with "
+            "the same settings stopped)"
+        ),
         default=False,
     )
     use_frame_range: BoolProperty(
@@ -365,6 +308,11 @@ class SSSSettings(PropertyGroup):
         description="Luminance PSNR over SSS pixels against the reference (dB); 0 = not computed",
         default=0.0,
     )
+
+
+SSSSettings.__annotations__.update(
+    {name: _param_property(f, spec) for name, (_, f, spec) in param_properties().items()}
+)
 
 
 class SSSMaterialSettings(PropertyGroup):
@@ -436,6 +384,24 @@ def _material_participates(material) -> bool:
 QUALITY_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
 
 
+def _group_values(settings, cls, prefix: str) -> dict:
+    """Values of a parameters dataclass's generated properties, as the core takes them."""
+    values = {}
+    for f, spec in specs(cls):
+        if not spec.ui:
+            continue
+        value = getattr(settings, prefix + f.name)
+        if spec.choices is not None:
+            if value == PER_MATERIAL:
+                value = None
+            elif isinstance(spec.choices[0], int):
+                value = int(value)
+        elif isinstance(value, float):
+            value = _decimal(value)
+        values[f.name] = value
+    return values
+
+
 def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSParams:
     """Build the core's parameter object from ``scene.sss_settings``.
 
@@ -455,24 +421,10 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
         ``quality`` set but the shipped calibration cannot be read.
 
     With ``quality`` other than MANUAL and a method of :data:`QUALITY_METHODS`,
-    σ0² and β_min (``fixed``: N) come from :func:`core.quality.apply` on the
+    σ0² and β_min (``fixed``: N) come from :func:`core.eval.quality.apply` on the
     shipped calibration; other methods have neither and ignore it.
     """
-    params = SSSParams(
-        eta=_decimal(settings.eta),
-        target_variance=_decimal(settings.target_variance),
-        eps_u=_decimal(settings.eps_u),
-        eps_alpha=_decimal(settings.eps_alpha),
-        kappa=_decimal(settings.kappa),
-        beta_min=int(settings.beta_min),
-        beta_max=int(settings.beta_max),
-        eta_cv=_decimal(settings.eta_cv),
-        fixed_spp=int(settings.fixed_spp),
-        reference_spp=int(settings.reference_spp),
-        seed=int(settings.seed),
-        history_precision=str(settings.history_precision),
-        exposure=_decimal(settings.exposure),
-    )
+    params = SSSParams(**_group_values(settings, SSSParams, ""))
     quality = getattr(settings, "quality", "MANUAL")
     method = settings.method if method is None else method
     if quality == "MANUAL" or method not in QUALITY_METHODS:
@@ -484,6 +436,19 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
         return calibrated.apply(params, target, method)[0]
     except (OSError, ValueError) as exc:  # a missing or unreadable calibration file
         raise ParameterError(f"quality: {exc}") from None
+
+
+def settings_to_options(settings: SSSSettings) -> MethodOptions:
+    """The profile choice and separable kernel of ``scene.sss_settings``.
+
+    Measured presets are per material (their Subsurface (cvsss) panel) and
+    travel with the passes; the scene setting picks the profile kind.
+    """
+    choice = ProfileChoice(**_group_values(settings, ProfileChoice, ""))
+    return MethodOptions(
+        profile=None if choice.is_default else choice,
+        separable=SeparableParams(**_group_values(settings, SeparableParams, "separable_")),
+    )
 
 
 def _decimal(value: float) -> float:

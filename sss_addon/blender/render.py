@@ -6,18 +6,19 @@ UI (the modal operators), where closing the generator cancels cleanly.
 
 Layout under the output folder::
 
-    passes/####.exr + ####.json   multilayer pass EXR and its sidecar (resumable)
-    <method>/####.exr             result layers (core.exr.write_result)
-    metrics.csv                   frame,method,spp,pass_ms,psnr_db
+    passes/####.exr + ####.json   multilayer pass EXR and its sidecar
+    <method>/####.exr             result layers (core.io.exr.write_result)
+    <method>/.checkpoint.npz      history after the last finished frame
+    metrics.csv                   one row per frame and method (core.run)
 
+The post-process is the one sequence driver, :class:`core.run.SequenceRun`.
+Pass frames that exist are reused unless ``overwrite``; the post-process
+resumes where a run with the same passes, methods and parameters stopped
+(``existing="continue"``) and starts over otherwise or with ``overwrite``.
 The reference (1024 spp) costs as much as all other methods together: with
 ``reference_every = k`` it is computed on every k-th frame of the range only
 (the first, the (k+1)-th, …; it keeps no history, so any subset is exact)
 and PSNR is reported on those frames.
-
-Pass frames that exist are reused unless ``overwrite``. The post-process
-carries a per-pixel history from frame to frame, so it always runs from the
-first frame of the range and rewrites the result files.
 """
 
 from __future__ import annotations
@@ -31,12 +32,11 @@ from pathlib import Path
 
 import bpy
 
-from ...core.eval.metrics import psnr
-from ...core.io.exr import read_frame, write_result
-from ...core.mc.processor import FrameResult, SequenceProcessor
-from ...core.methods import METHODS
+from ...core.io.exr import read_frame
+from ...core.methods import METHODS, MethodOptions
 from ...core.params import SSSParams
-from ..cli.post import format_clock, format_metrics, write_text_atomic
+from ...core.result import FrameResult
+from ...core.run import RunSpec, SequenceRun, format_clock
 from . import materials as sss_materials
 from .passes import (
     PassSetup,
@@ -75,6 +75,7 @@ class Job:
     out: Path
     methods: list[str]
     params: SSSParams
+    options: MethodOptions = field(default_factory=MethodOptions)
     engine: str = "CYCLES"
     overwrite: bool = False
     normal: bool = False
@@ -168,6 +169,7 @@ def prepare(
     methods: Sequence[str] = ("as_ccv",),
     params: SSSParams | None = None,
     *,
+    options: MethodOptions | None = None,
     engine: str = "CYCLES",
     overwrite: bool = False,
     reference: bool = False,
@@ -229,6 +231,7 @@ def prepare(
         out=out,
         methods=names,
         params=params or SSSParams(),
+        options=options or MethodOptions(),
         engine=engine,
         overwrite=overwrite,
         normal=normal,
@@ -241,11 +244,13 @@ def prepare(
 
 
 # -- steps ------------------------------------------------------------------------------------
-def iter_passes(job: Job) -> Iterator[Step]:
+def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterator[Step]:
     """Render (or reuse) the pass file of each frame; one Step per frame.
 
-    The scene is configured and restored around each frame, and the current
-    frame is restored when the generator ends, fails or is closed.
+    ``needed(frame)`` false skips rendering a missing pass file (the frame's
+    results are already done). The scene is configured and restored around
+    each frame, and the current frame is restored when the generator ends,
+    fails or is closed.
     """
     scene = job.scene
     frame_before, subframe_before = scene.frame_current, scene.frame_subframe
@@ -256,6 +261,7 @@ def iter_passes(job: Job) -> Iterator[Step]:
             start = time.perf_counter()
             path = pass_path(job.passes_dir, frame)
             rendered = job.overwrite or not frame_done(job.passes_dir, frame)
+            rendered = rendered and (needed is None or needed(frame))
             if rendered:
                 scene.frame_set(frame)
                 specs = sss_materials.material_specs(job.materials, scene)
@@ -274,96 +280,57 @@ def iter_passes(job: Job) -> Iterator[Step]:
         scene.frame_set(frame_before, subframe=subframe_before)
 
 
-def reference_due(job: Job, index: int) -> bool:
-    """Whether the reference is computed on the ``index``-th (1-based) frame of the range."""
-    return (index - 1) % job.reference_every == 0
+def run_of(job: Job, write: bool = True) -> SequenceRun:
+    """The post-process of ``job``: every method over the job's frames (core.run)."""
+    spec = RunSpec(
+        tuple(job.methods),
+        job.params,
+        job.options,
+        reference_every=job.reference_every,
+        source=os.fspath(job.passes_dir.resolve()),
+    )
+    existing = "overwrite" if job.overwrite else "continue"
+    return SequenceRun(job.out, spec, job.frames, existing=existing, write=write, log=job.log)
 
 
-def _fmt(value: float | None, digits: int) -> str:
-    if value is None or value != value:
-        return ""
-    return f"{value:.{digits}f}"
+def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
+    """Post-process the pass file of ``step`` and show the displayed method's maps."""
+    if not run.pending(step.frame):
+        return
+    start = time.perf_counter()
+    done = run.step(read_frame(step.path, number=step.frame), source=step.path.name)
+    step.results, step.rows = done.results, done.rows
+    step.post_seconds = time.perf_counter() - start
+    step.seconds += step.post_seconds
+    result = done.results.get(job.display)
+    if result is None:
+        return
+    row = next(r for r in done.rows if r["method"] == job.display)
+    if job.images:
+        from .images import show_result
 
-
-def _post_frame(
-    job: Job, processors: dict[str, SequenceProcessor], step: Step, write: bool
-) -> None:
-    """Post-process the pass file of ``step`` with every processor, in order."""
-    frame = read_frame(step.path, number=step.frame)
+        show_result(result)
     settings = getattr(job.scene, "sss_settings", None)
-    ref = None
-    skip_reference = not reference_due(job, step.index)
-    for name, processor in processors.items():
-        if name == "reference" and skip_reference:
-            continue
-        result = processor.process(frame)
-        if name == "reference":
-            ref = result
-        # As in `cvsss post`: the reference is listed too (against itself: the 100 dB cap).
-        value = (
-            psnr(result.composite, ref.composite, result.mask, job.params.exposure)
-            if ref is not None
-            else None
-        )
-        if write:
-            write_result(
-                job.out / name / step.path.name,
-                result,
-                overwrite=True,
-                metadata={"source": step.path.name},
-            )
-        step.results[name] = result
-        step.rows.append(
-            {
-                "frame": step.frame,
-                "method": name,
-                "spp": _fmt(result.spp, 4),
-                "pass_ms": _fmt(result.pass_ms, 3),
-                "psnr_db": _fmt(value, 3),
-            }
-        )
-        if name == job.display:
-            if job.images:
-                from .images import show_result
+    if settings is not None:
+        from .properties import store_stats
 
-                show_result(result)
-            if settings is not None:
-                from .properties import store_stats
-
-                store_stats(settings, step.frame, name, result.spp, result.pass_ms, value)
-        if job.log:
-            job.log(
-                f"frame {step.index}/{step.total} ({step.frame}) {name:>9}: "
-                f"spp {result.spp:7.2f}  pass {result.pass_ms:8.2f} ms  "
-                f"psnr {_fmt(value, 2) or '-':>6} dB  distant {result.distant_share:6.1%}"
-            )
+        value = float(row["psnr_db"]) if row["psnr_db"] else None
+        store_stats(settings, step.frame, job.display, result.spp, result.pass_ms, value)
 
 
-def iter_sequence(job: Job) -> Iterator[Step]:
+def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
     """Passes then post-process, frame by frame, for every method of the job.
 
-    Writes ``<out>/<method>/####.exr`` and rewrites ``<out>/metrics.csv``
-    after each frame, so a cancelled run keeps its finished frames.
+    Writes ``<out>/<method>/####.exr``, a checkpoint per method and
+    ``<out>/metrics.csv`` after each frame, so a cancelled run keeps its
+    finished frames and the next run continues after them. ``run`` defaults
+    to :func:`run_of` the job.
     """
-    processors = {name: SequenceProcessor(name, job.params) for name in job.methods}
-    rows: list[dict] = []
-    began = time.perf_counter()
-    for step in iter_passes(job):
-        start = time.perf_counter()
-        _post_frame(job, processors, step, write=True)
-        rows.extend(step.rows)
-        write_text_atomic(job.out / "metrics.csv", format_metrics(rows))
-        post = time.perf_counter() - start
-        step.seconds += post
-        step.post_seconds = post
-        if job.log:
-            elapsed = time.perf_counter() - began
-            eta = elapsed / step.index * (step.total - step.index)
-            job.log(
-                f"frame {step.index}/{step.total} ({step.frame}) post-process [{post:.2f} s; "
-                f"elapsed {format_clock(elapsed)}, eta {format_clock(eta)}]"
-            )
+    run = run or run_of(job)
+    for step in iter_passes(job, needed=run.pending):
+        _post_frame(job, run, step)
         yield step
+    run.finish()
 
 
 def apply_frame(job: Job) -> Step:
@@ -374,10 +341,10 @@ def apply_frame(job: Job) -> Step:
     """
     if len(job.frames) != 1:
         raise RenderError(f"apply_frame takes one frame, got {len(job.frames)}")
-    processors = {name: SequenceProcessor(name, job.params) for name in job.methods}
+    run = run_of(job, write=False)
     step = None
     for step in iter_passes(job):
-        _post_frame(job, processors, step, write=False)
+        _post_frame(job, run, step)
     return step
 
 
@@ -395,13 +362,16 @@ def job_from_scene(
     context=None,
     log: Log = None,
     reference_every: int = 1,
+    options: MethodOptions | Mapping | None = None,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
     ``params`` may be a mapping of SSSParams fields that override the
-    settings' values one by one.
+    settings' values one by one; ``options`` a mapping with ``"profile"`` (a
+    ProfileChoice replacing the scene's) and ``"separable"`` (SeparableParams
+    fields overriding the scene's).
     """
-    from .properties import frame_range, settings_to_params
+    from .properties import frame_range, settings_to_options, settings_to_params
 
     settings = scene.sss_settings
     names = list(methods) if methods else [settings.method]
@@ -409,12 +379,20 @@ def job_from_scene(
         # The quality target calibrates the method shown (the first that is not the reference).
         shown = next((n for n in names if n != "reference"), names[0])
         params = settings_to_params(settings, shown).replace(**dict(params or {}))
+    if options is None or isinstance(options, Mapping):
+        given = dict(options or {})
+        base = settings_to_options(settings)
+        options = MethodOptions(
+            profile=given.get("profile", base.profile),
+            separable=base.separable.replace(**given.get("separable", {})),
+        )
     return prepare(
         scene,
         frames if frames is not None else frame_range(scene),
         out if out is not None else resolve_output_dir(settings),
         names,
         params,
+        options=options,
         engine=engine or settings.engine,
         overwrite=settings.overwrite if overwrite is None else overwrite,
         reference=settings.use_reference if reference is None else reference,
@@ -453,6 +431,7 @@ def render_sequence(
     reference: bool | None = None,
     images: bool = False,
     reference_every: int = 1,
+    options: MethodOptions | Mapping | None = None,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -472,7 +451,8 @@ def render_sequence(
     engine : {"CYCLES", "EEVEE"}, optional
         Defaults to ``sss_settings.engine``.
     overwrite : bool
-        Render pass frames again even if their files exist.
+        Render pass frames again even if their files exist, and start the
+        post-process over (otherwise it resumes a run with the same settings).
     log : callable(str) or None
         Progress printer.
     reference : bool, optional
@@ -481,6 +461,7 @@ def render_sequence(
         Update the image datablocks after each frame.
     reference_every : int
         Compute the reference (and PSNR) on every k-th frame of the range only.
+    options : MethodOptions, or a mapping of overrides (see :func:`job_from_scene`)
 
     Returns
     -------
@@ -492,7 +473,7 @@ def render_sequence(
     RenderError
         A problem with the inputs (missing .blend, bad frame range,
         unwritable output, no subsurface material, …).
-    core.exr.PassError, core.exr.OutputError, core.params.ParameterError
+    core.io.errors.PassError, core.io.errors.OutputError, core.params.ParameterError
     """
     unregister = _ensure_registered()
     try:
@@ -521,11 +502,12 @@ def render_sequence(
             images=images,
             log=log,
             reference_every=reference_every,
+            options=options,
         )
-        rows: list[dict] = []
-        for step in iter_sequence(job):
-            rows.extend(step.rows)
-        return rows
+        run = run_of(job)
+        for _ in iter_sequence(job, run):
+            pass
+        return run.rows
     finally:
         if unregister is not None:
             unregister()

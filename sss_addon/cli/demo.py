@@ -19,8 +19,9 @@ synthetic
     written as real multi-part EXR files and read back like rendered ones;
     no Blender needed.
 
-Every method's results are recomputed on each run (the history runs from
-the first frame). The 1024-spp reference, as costly as all other methods
+Every method's results continue where a run with the same passes, methods
+and parameters stopped (core.run, ``existing="continue"``) and are computed
+again otherwise. The 1024-spp reference, as costly as all other methods
 together, is computed on every k-th frame (``reference_every``; the first,
 the (k+1)-th, …) and PSNR is averaged over those frames.
 """
@@ -37,11 +38,13 @@ from pathlib import Path
 import numpy as np
 
 from ...core.eval.metrics import median3
-from ...core.io.exr import make_folder, write_passes
+from ...core.io.atomic import make_folder, write_text
+from ...core.io.exr import write_passes
+from ...core.methods import MethodOptions
 from ...core.params import SSSParams
+from ...core.run import RunSpec, format_clock, run_folder
 from ...core.synthetic import sequence
 from . import report as plots
-from .post import format_clock, post_process, write_text_atomic
 
 #: Methods compared by the demo, in report order.
 DEMO_METHODS = ("as", "as_ocv", "as_ccv", "fixed", "separable", "reference")
@@ -206,7 +209,7 @@ def write_report(out: Path, summary: dict, header: list[str], beta_max: int) -> 
         f"{beta_max}]; grey is outside the SSS materials."
     ]
     path = out / "report.md"
-    write_text_atomic(path, "\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -254,7 +257,7 @@ def _pass_cache(
         for path in frames:
             path.unlink()
     make_folder(passes)
-    write_text_atomic(stamp_path, json.dumps(stamp, indent=2))
+    write_text(stamp_path, json.dumps(stamp, indent=2))
     return passes
 
 
@@ -369,6 +372,7 @@ def run_demo(
     height: int = 180,
     frames: int = 120,
     params: SSSParams | None = None,
+    options: MethodOptions | None = None,
     overwrite: bool = False,
     source: str = "blender",
     engine: str = "CYCLES",
@@ -385,6 +389,7 @@ def run_demo(
     width, height : pass size in pixels
     frames : frames per scene at 60 fps
     params : SSSParams of every method (paper defaults)
+    options : MethodOptions (profile choice, separable kernel; defaults)
     overwrite : make the passes again even if they exist
     source : ``"blender"`` (Cycles/EEVEE renders of demo_blend) or ``"synthetic"``
     engine, samples : render engine and its samples per pixel (blender only)
@@ -461,15 +466,18 @@ def run_demo(
             if " as_ccv:" in text:  # one line per frame, with elapsed and ETA
                 log(stamp(f"{scene}: {text}"))
 
-        rows = post_process(
+        rows = run_folder(
             passes,
             scene_dir,
-            DEMO_METHODS,
-            params,
-            reference=True,
-            overwrite=True,
+            RunSpec(
+                DEMO_METHODS,
+                params,
+                options or MethodOptions(),
+                reference=True,
+                reference_every=reference_every,
+            ),
+            existing="continue",
             log=progress if log else None,
-            reference_every=reference_every,
         )
         summary[scene] = summarize(rows)
         if log:
@@ -494,7 +502,7 @@ def run_demo(
         }
         for sc, methods in summary.items()
     }
-    write_text_atomic(out / "summary.json", json.dumps(plain, indent=2))
+    write_text(out / "summary.json", json.dumps(plain, indent=2))
     for scene in summary:
         make_plots(out, scene, [1, frames], params.beta_max)
     plots.plot_pareto(summary, out / "pareto.png")

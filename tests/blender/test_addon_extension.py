@@ -140,7 +140,7 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     assert report["core_module"].startswith(str(tmp_path / "repo" / "cvsss"))
     assert "tests" not in report["installed_files"]
     assert report["operators"] == ["apply_frame", "build_demo", "render_passes", "render_sequence"]
-    assert report["panels"] == ["SSS_PT_material", "SSS_PT_render"]
+    assert report["panels"] == ["SSS_PT_material", "SSS_PT_render", "SSS_PT_render_advanced"]
 
     settings = report["settings"]
     defaults = SSSParams()

@@ -10,11 +10,12 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_frame, read_result  # noqa: E402
-from cvsss.core.mc.processor import SequenceProcessor  # noqa: E402
+from cvsss.core.methods import make_processor  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
 from cvsss.sss_addon.blender import passes, render  # noqa: E402
 from cvsss.sss_addon.blender.images import MAPS  # noqa: E402
 from cvsss.sss_addon.blender.properties import settings_to_params  # noqa: E402
+from cvsss.sss_addon.cli import main as cli  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -71,14 +72,41 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
         (f, m) for f in (1, 2, 3) for m in ("reference", "as_ocv")
     ]
 
-    # Operator ≡ API: the same passes through the core give the same maps.
-    processors = {m: SequenceProcessor(m, settings_to_params(s)) for m in ("reference", "as_ocv")}
+    # Operator ≡ command line: `cvsss post` on the same passes writes the same
+    # layers, bit for bit (all of them), and the same metric rows.
+    cli_out = tmp_path / "cli"
+    argv = ["post", str(out / "passes"), "--out", str(cli_out), "--method", "as_ocv"]
+    argv += ["--reference", "--reference-spp", "64", "--target-variance", "1e-6", "--quiet"]
+    assert cli.main(argv) == 0
+    for frame in (1, 2, 3):
+        for method in ("reference", "as_ocv"):
+            written = read_result(out / method / f"{frame:04d}.exr")
+            again = read_result(cli_out / method / f"{frame:04d}.exr")
+            layers = set(written) - {"header"}
+            assert layers == {
+                "Composite",
+                "SSS",
+                "Gamma",
+                "SampleCount",
+                "Alpha",
+                "Variance",
+                "ValidHistory",
+                "Mask",
+            }
+            assert layers == set(again) - {"header"}
+            for layer in layers:
+                np.testing.assert_array_equal(written[layer], again[layer], err_msg=layer)
+    cli_rows = list(csv.DictReader(open(cli_out / "metrics.csv")))
+    drop = ("pass_ms",)
+    assert [{k: v for k, v in r.items() if k not in drop} for r in rows] == [
+        {k: v for k, v in r.items() if k not in drop} for r in cli_rows
+    ]
+    # … and ≡ the core's processors called directly (the maps shown in Blender).
+    processors = {m: make_processor(m, settings_to_params(s)) for m in ("reference", "as_ocv")}
     for frame in (1, 2, 3):
         f = read_frame(out / "passes" / f"{frame:04d}.exr")
         ref = processors["reference"].process(f)
         res = processors["as_ocv"].process(f)
-        written = read_result(out / "as_ocv" / f"{frame:04d}.exr")
-        np.testing.assert_array_equal(written["SampleCount"], res.counts)
     assert len(np.unique(res.counts)) > 3  # a non-trivial count map
     for name, (field, _) in MAPS.items():
         image = bpy.data.images[name]
@@ -166,7 +194,7 @@ def test_apply_frame_updates_images_in_place(demo, tmp_path):
 
     # Same passes through the core: a single frame starts without history.
     params = settings_to_params(scene.sss_settings)
-    res = SequenceProcessor("as_ocv", params).process(
+    res = make_processor("as_ocv", params).process(
         read_frame(tmp_path / "out" / "passes" / "0002.exr")
     )
     np.testing.assert_array_equal(

@@ -8,11 +8,20 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from cvsss.core.methods import METHODS  # noqa: E402
-from cvsss.core.params import SSSParams  # noqa: E402
+from cvsss.core.params import (  # noqa: E402
+    SSSParams,
+    flag_of,
+    specs,
+)
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
 from cvsss.sss_addon.blender import materials  # noqa: E402
-from cvsss.sss_addon.blender.properties import PRESET_NAMES, settings_to_params  # noqa: E402
+from cvsss.sss_addon.blender.properties import (  # noqa: E402
+    PRESET_NAMES,
+    param_properties,
+    settings_to_params,
+)
+from cvsss.sss_addon.cli import params as cli_params  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -178,7 +187,7 @@ def _addon_classes():
 
 def test_unregister_leaves_nothing(addon):
     classes = _addon_classes()
-    assert len(classes) == 8 and all(c.is_registered for c in classes)
+    assert len(classes) == 9 and all(c.is_registered for c in classes)
     addon.unregister()
     try:
         assert not [c for c in classes if c.is_registered]
@@ -276,6 +285,21 @@ def test_panels_draw(fresh):
         "sss.build_demo",
     }
     assert ("label", "No frame processed yet") in log
+    # Main panel + Advanced sub-panel: every parameter the command line takes.
+    panels.SSS_PT_render_advanced.draw(SimpleNamespace(layout=_Layout(log)), context)
+    drawn = {name for kind, name in log if kind == "prop"}
+    generated = param_properties()
+    assert set(generated) <= drawn
+    flags = {
+        (cls.__name__, f.name)
+        for _, cls, _ in cli_params.GROUPS
+        for f, spec in specs(cls)
+        if flag_of(f, spec)
+    }
+    shown = {(cls.__name__, f.name) for cls, f, _ in generated.values()}
+    # Measured materials and their scale are per material in Blender (Material panel:
+    # preset, preset_scale; millimetres per unit from the scene's unit scale).
+    assert flags - shown == {("ProfileChoice", "mm_per_unit"), ("ProfileChoice", "scale")}
     s = fresh.sss_settings
     s.has_stats, s.last_spp, s.last_pass_ms, s.last_psnr = True, 12.5, 3.25, 48.0
     log.clear()

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cvsss.core import SequenceProcessor, SSSParams
+from cvsss.core import SSSParams, make_processor
 from cvsss.core.mc import adaptive
 from cvsss.core.synthetic import scene_frame
 
@@ -58,7 +58,7 @@ def test_update_equations():
 def test_static_scene_settles_near_target():
     """On a static scene, where counts are not clamped, σ² settles near σ0²."""
     p = SSSParams(target_variance=2e-5, beta_min=1, beta_max=1024, kappa=0.2)
-    proc = SequenceProcessor("as", p)
+    proc = make_processor("as", p)
     for n in range(1, 61):
         res = proc.process(scene_frame("static", n, 96, 54))
     c = res.counts[res.mask]
@@ -71,7 +71,7 @@ def test_static_scene_settles_near_target():
 
 def test_counts_always_in_range_over_a_flashing_sequence():
     p = SSSParams()
-    proc = SequenceProcessor("as_ocv", p)
+    proc = make_processor("as_ocv", p)
     for n in range(1, 25):
         res = proc.process(scene_frame("flash", n, 64, 36))
         c = res.counts[res.mask]

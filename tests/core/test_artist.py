@@ -1,20 +1,14 @@
 """Artist-friendly profile (Jimenez et al. 2015): sampler, γ = c, fits, Eq. 17 against the dipole."""
 
-import math
-
 import numpy as np
 import pytest
 
-from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import ArtistProfile, DipoleProfile, presets
 from cvsss.core.profiles.artist import KEEP_SIGMAS, distant_mean, eq17_strength, from_radial
 from cvsss.core.profiles.radial import RadialModel, radial_model
 from cvsss.core.synthetic import flat_plane
 
-
-def wilson_hilferty(dof: int, z: float = 3.09) -> float:
-    """≈ 99.9 % quantile of chi² with ``dof`` degrees of freedom."""
-    return dof * (1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof))) ** 3
+from helpers import chi2_limit, shade
 
 
 def artist(
@@ -71,7 +65,7 @@ def test_sampler_chi_square(channel, r0):
     expected = n * np.diff(cdf) / (cdf[-1] - cdf[0])
     keep = expected > 5
     chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
-    assert chi2 < wilson_hilferty(int(keep.sum()) - 1), chi2
+    assert chi2 < chi2_limit(int(keep.sum()) - 1), chi2
 
 
 def test_gamma_is_strength_and_weight_scale_depends_on_pixel():
@@ -121,21 +115,7 @@ def test_from_radial_recovers_three_gaussians():
 
 # -- through the unified estimator ---------------------------------------------------------
 def run(frame, prof, counts, seed=0):
-    geom = prepare(frame.depth, frame.material, frame.camera, prof)
-    m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
-    est = estimate_distant(
-        geom,
-        frame.lighting,
-        frame.depth,
-        frame.material,
-        prof,
-        m,
-        frame=frame.number,
-        seed=seed,
-        depth_slope=2.0,
-    )
-    b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
-    return geom, est, (1 - geom.gamma) * b + est.distant
+    return shade(frame, counts, prof, seed=seed)
 
 
 #: ~4.5 / 2.7 / 1.3 px (near) and 18 / 9 / 4.5 px (far) at 2 m, 64 px wide.

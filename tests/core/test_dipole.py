@@ -5,14 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from cvsss.core.mc.estimator import estimate_distant, prepare
 from cvsss.core.profiles import DipoleProfile, dipole, presets
 from cvsss.core.synthetic import flat_plane
 
-
-def wilson_hilferty(dof: int, z: float = 3.09) -> float:
-    """≈ 99.9 % quantile of chi² with ``dof`` degrees of freedom."""
-    return dof * (1 - 2 / (9 * dof) + z * math.sqrt(2 / (9 * dof))) ** 3
+from helpers import chi2_limit, shade
 
 
 def profile_of(name: str, unit: float = 1.0, single: bool = True) -> DipoleProfile:
@@ -107,7 +103,7 @@ def test_sampler_chi_square(channel):
     expected = n * np.diff(cdf) / (cdf[-1] - cdf[0])
     keep = expected > 5
     chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
-    assert chi2 < wilson_hilferty(int(keep.sum()) - 1), chi2
+    assert chi2 < chi2_limit(int(keep.sum()) - 1), chi2
 
 
 def test_region_limits_and_units():
@@ -158,21 +154,7 @@ UNIT = 20.0 / 1000.0
 
 
 def run(frame, prof, counts, seed=0):
-    geom = prepare(frame.depth, frame.material, frame.camera, prof)
-    m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
-    est = estimate_distant(
-        geom,
-        frame.lighting,
-        frame.depth,
-        frame.material,
-        prof,
-        m,
-        frame=frame.number,
-        seed=seed,
-        depth_slope=2.0,
-    )
-    b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
-    return geom, est, (1 - geom.gamma) * b + est.distant
+    return shade(frame, counts, prof, seed=seed)
 
 
 @pytest.mark.parametrize("m", [0, 1, 7, 64])

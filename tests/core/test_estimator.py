@@ -5,31 +5,19 @@ import warnings
 import numpy as np
 import pytest
 
-from cvsss.core import SequenceProcessor, SSSParams
-from cvsss.core.mc.estimator import estimate_distant, prepare
+from cvsss.core import SSSParams, make_processor
+from cvsss.core.geometry import prepare
+from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.profiles import BurleyProfile
 from cvsss.core.synthetic import flat_plane, scene_frame
+
+from helpers import shade
 
 CHROMATIC = (0.02, 0.008, 0.003)  # metres; ~2.7, 1.1, 0.4 px at 2 m, 64 px wide
 
 
 def run(frame, counts, seed=0, slope=2.0):
-    prof = BurleyProfile(frame.d_table())
-    geom = prepare(frame.depth, frame.material, frame.camera, prof)
-    m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
-    est = estimate_distant(
-        geom,
-        frame.lighting,
-        frame.depth,
-        frame.material,
-        prof,
-        m,
-        frame=frame.number,
-        seed=seed,
-        depth_slope=slope,
-    )
-    b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
-    return geom, est, (1 - geom.gamma) * b + est.distant
+    return shade(frame, counts, seed=seed, slope=slope)
 
 
 @pytest.mark.parametrize("m", [0, 1, 2, 7, 64, 300])
@@ -123,20 +111,18 @@ def test_bit_identical_reruns_and_seed_dependence():
 def test_chunking_does_not_change_result():
     frame = scene_frame("static", 2, 96, 54)
     prof = BurleyProfile(frame.d_table())
-    geom = prepare(frame.depth, frame.material, frame.camera, prof)
+    geom = prepare(frame, prof)
     m = np.full(geom.size, 13)
     kw = dict(frame=2, seed=1, depth_slope=2.0)
-    a = estimate_distant(geom, frame.lighting, frame.depth, frame.material, prof, m, **kw)
-    b = estimate_distant(
-        geom, frame.lighting, frame.depth, frame.material, prof, m, chunk_samples=1024, **kw
-    )
+    a = estimate_distant(geom, frame.lighting, frame.depth, prof, m, **kw)
+    b = estimate_distant(geom, frame.lighting, frame.depth, prof, m, chunk_samples=1024, **kw)
     assert a.samples == b.samples
     assert np.allclose(a.distant, b.distant, rtol=1e-12, atol=1e-12)
 
 
 def test_background_and_non_sss_untouched():
     frame = scene_frame("static", 1, 96, 54)
-    res = SequenceProcessor("fixed", SSSParams(fixed_spp=8)).process(frame)
+    res = make_processor("fixed", SSSParams(fixed_spp=8)).process(frame)
     off = ~res.mask
     assert np.array_equal(res.composite[off], frame.combined[off])
     assert np.all(res.counts[off] == 0)
@@ -166,7 +152,7 @@ def test_bad_values_never_leak(bad):
     )
     p = SSSParams()
     for method in ("fixed", "as", "as_ocv", "as_ccv"):
-        proc = SequenceProcessor(method, p)
+        proc = make_processor(method, p)
         for _ in range(3):
             res = proc.process(frame)
             for arr in (res.sss, res.composite, res.alpha, res.gamma, res.variance):

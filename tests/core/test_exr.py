@@ -16,20 +16,18 @@ import OpenEXR
 import pytest
 
 from cvsss.core import Camera, Frame, FrameResult, MaterialSpec
-from cvsss.core.io import exr
+from cvsss.core.io import atomic
+from cvsss.core.io.errors import OutputError, PassError
 from cvsss.core.io.exr import (
-    OutputError,
-    PassError,
     list_frames,
-    make_sidecar,
     motion_from_vector,
     read_frame,
     read_result,
     vector_from_motion,
     write_passes,
     write_result,
-    write_sidecar,
 )
+from cvsss.core.io.sidecar import make_sidecar, write_sidecar
 
 SKIN = MaterialSpec(slot=1, name="Skin", d=(0.01, 0.004, 0.002))
 MARBLE = MaterialSpec(slot=2, name="Marble", d=(0.02, 0.02, 0.015), options={"preset": "x"})
@@ -518,7 +516,7 @@ def test_failure_after_sync_leaves_nothing(tmp_path, monkeypatch):
     def no_space(fd):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(exr.os, "fsync", no_space)
+    monkeypatch.setattr(atomic.os, "fsync", no_space)
     with pytest.raises(OutputError, match="No space left on device"):
         write_passes(tmp_path / "0001.exr", make_frame())
     monkeypatch.undo()
@@ -540,7 +538,7 @@ def test_permission_denied_names_file_and_cause(tmp_path, monkeypatch):
             raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
         return real_open(path, flags, *args)
 
-    monkeypatch.setattr(exr.os, "open", deny)
+    monkeypatch.setattr(atomic.os, "open", deny)
     with pytest.raises(OutputError, match=r"cannot write .*0001\.json: Permission denied"):
         write_passes(tmp_path / "0001.exr", make_frame())
     monkeypatch.undo()

@@ -15,8 +15,9 @@ import json
 import numpy as np
 import pytest
 
+from cvsss.core.io import checkpoint
 from cvsss.core.mc.history import History
-from cvsss.core.mc.processor import SequenceProcessor
+from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.studies import fp16
 from cvsss.core.synthetic import scene_frame
@@ -76,13 +77,15 @@ def test_saturated_ratio_still_asks_for_beta_max():
 
 
 def test_checkpoint_round_trip_keeps_scales(tmp_path):
-    proc = SequenceProcessor("as_ocv", SSSParams(history_precision="float16", target_variance=1e-8))
+    proc = make_processor("as_ocv", SSSParams(history_precision="float16", target_variance=1e-8))
     for n in range(1, 4):
         proc.process(scene_frame("flash", n, 24, 16))
     h = proc.history
     path = tmp_path / "h.npz"
-    h.save(path)
-    back = History.load(path)
+    checkpoint.save(path, {"method": "as_ocv"}, proc.state())
+    state, arrays = checkpoint.load(path)
+    assert state["method"] == "as_ocv"
+    back = History.from_arrays(arrays, "h_")
     assert back.var_scale == h.var_scale == pytest.approx(1e8)
     assert back.cov_scale == h.cov_scale
     for key in h.buffers:

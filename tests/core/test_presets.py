@@ -3,16 +3,17 @@
 import numpy as np
 import pytest
 
-from cvsss.core import SequenceProcessor, SSSParams
+from cvsss.core import SSSParams
 from cvsss.core.frame import MaterialSpec
-from cvsss.core.mc.estimator import estimate_distant, prepare
+from cvsss.core.geometry import prepare
+from cvsss.core.mc.estimator import estimate_distant
+from cvsss.core.methods import MethodOptions, make_processor
 from cvsss.core.profiles import (
     ArtistProfile,
     BurleyProfile,
     DipoleProfile,
     MixedProfile,
     ProfileChoice,
-    make_profile_factory,
     presets,
 )
 from cvsss.core.profiles.factory import ProfileError, build_profile
@@ -85,7 +86,10 @@ def test_parse_material_and_choice():
     assert specs[1].profile == specs[2].profile == "dipole"
     assert specs[1].options == {"preset": "skin2", "mm_per_unit": 1000.0, "scale": 5.0}
     assert specs[2].options["preset"] == "marble"
-    assert repr(make_profile_factory(choice)) == repr(make_profile_factory(choice))
+    assert (
+        choice.to_dict()
+        == ProfileChoice(**{**choice.to_dict(), "slot_materials": ((2, "marble"),)}).to_dict()
+    )
 
 
 def _specs(**kinds):
@@ -163,13 +167,12 @@ def test_mixed_profile_constant_lighting_is_exact(m):
         ),
     )
     prof = build_profile(specs, 4)
-    geom = prepare(frame.depth, frame.material, frame.camera, prof)
+    geom = prepare(frame, prof)
     counts = np.full(geom.size, m)
     est = estimate_distant(
         geom,
         frame.lighting,
         frame.depth,
-        frame.material,
         prof,
         counts,
         frame=1,
@@ -184,8 +187,8 @@ def test_mixed_profile_constant_lighting_is_exact(m):
 
 @pytest.mark.parametrize("profile", ["burley", "dipole", "artist"])
 def test_sequence_processor_runs_every_profile(profile):
-    factory = make_profile_factory(ProfileChoice(profile=profile, material="skin1", scale=20.0))
-    proc = SequenceProcessor("as_ccv", SSSParams(), profile_factory=factory)
+    choice = ProfileChoice(profile=profile, material="skin1", scale=20.0)
+    proc = make_processor("as_ccv", SSSParams(), MethodOptions(profile=choice))
     frame = scene_frame("flash", 2, 64, 36)
     res = proc.process(frame)
     assert np.all(np.isfinite(res.composite)) and res.samples > 0

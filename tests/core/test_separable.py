@@ -6,11 +6,12 @@ import itertools
 import numpy as np
 import pytest
 
-from cvsss.core import SequenceProcessor, SSSParams
+from cvsss.core import SSSParams
 from cvsss.core.frame import Frame
-from cvsss.core.mc.processor import default_profile
+from cvsss.core.methods import MethodOptions, make_processor
 from cvsss.core.params import ParameterError
 from cvsss.core.profiles import BurleyProfile, presets
+from cvsss.core.profiles.factory import frame_profile
 from cvsss.core.profiles.radial import discretize, radial_model
 from cvsss.core.separable.kernels import (
     KERNELS,
@@ -34,7 +35,9 @@ def burley_kernel(d=0.01, m=65):
 
 def separable(frame, **kw):
     sss = kw.pop("sss", SSSParams())
-    return SequenceProcessor("separable", sss, separable=SeparableParams(**kw)).process(frame)
+    return make_processor("separable", sss, MethodOptions(separable=SeparableParams(**kw))).process(
+        frame
+    )
 
 
 def test_params_validation():
@@ -102,7 +105,7 @@ def test_pre_integrated_is_exact_for_additively_separable_lighting():
 
 def test_kernel_errors_are_reported_and_ordered():
     frame = flat_plane(d=CHROMATIC)
-    prof = default_profile(frame, SSSParams())
+    prof = frame_profile(frame, SSSParams())
     errs = kernel_errors(prof, 1, gaussians=3, grid=65)
     assert set(errs) == set(KERNELS)
     for k, e in errs.items():
@@ -173,7 +176,7 @@ def test_jitter_removes_banding_on_a_step_edge():
     frame = flat_plane(w, h, d=(0.03, 0.03, 0.03), lighting=b)
     fw = frame.camera.footprint(2.0)[0]
     params = SeparableParams(taps=17, grid=129)
-    prof = default_profile(frame, SSSParams())
+    prof = frame_profile(frame, SSSParams())
     kern, delta, _ = slot_terms(radial_model(prof, 1), params, 0)
     a = kern.sum(axis=0)
     t = (np.arange(a.size) - a.size // 2) * delta / fw
@@ -199,10 +202,12 @@ def test_jitter_removes_banding_on_a_step_edge():
 def test_frame_result_and_determinism():
     frame = scene_frame("flash", 4, 64, 36)
     res = separable(frame, kernel="svd2", taps=11, jitter=True)
-    assert res.method == "separable" and res.spp == 11.0
-    assert np.all(res.counts[res.mask] == 11) and np.all(res.counts[~res.mask] == 0)
-    assert np.all(res.alpha == 0) and res.pass_ms > 0 and res.samples > 0
-    ref_gamma = SequenceProcessor("fixed", SSSParams()).process(frame).gamma
+    # Its sample count is what it reads per pixel: 2 passes x J = 2 terms x 11 taps.
+    assert res.method == "separable" and res.spp == 44.0
+    assert np.all(res.counts[res.mask] == 44) and np.all(res.counts[~res.mask] == 0)
+    assert res.samples == 44 * int(res.mask.sum())
+    assert np.all(res.alpha == 0) and res.pass_ms > 0
+    ref_gamma = make_processor("fixed", SSSParams()).process(frame).gamma
     assert np.array_equal(res.gamma, ref_gamma)
     off = ~res.mask
     assert np.array_equal(res.composite[off], frame.combined[off])

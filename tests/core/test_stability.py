@@ -20,7 +20,7 @@ with d -> 0 (1e-30, 1e-12, 0), a slot with d much larger than the screen
 input passes, 1-pixel camera motion (disocclusions) and depth jumps that
 invalidate the history.
 
-Frame counts (SequenceProcessor costs 2-4 ms per 32x32 frame here):
+Frame counts (the processor costs 2-4 ms per 32x32 frame here):
 
 - fast lane: each parameter extreme alone x 3 adaptive methods x 2 history
   precisions, 12 frames (4 for β_max = 1024); each pass extreme alone x 6
@@ -47,7 +47,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from cvsss.core import SequenceProcessor, SSSParams
+from cvsss.core import SSSParams, make_processor
 from cvsss.core.camera import Camera
 from cvsss.core.frame import Frame, MaterialSpec
 from cvsss.core.mc import adaptive, control_variates
@@ -174,7 +174,7 @@ class CoefficientSpy:
         monkeypatch.setattr(control_variates, "cv_coefficient", spy)
 
 
-def check_frame(res, proc: SequenceProcessor, spy: CoefficientSpy | None = None) -> None:
+def check_frame(res, proc, spy: CoefficientSpy | None = None) -> None:
     p = proc.params
     for name in ("sss", "composite", "alpha", "gamma", "variance"):
         a = getattr(res, name)
@@ -185,7 +185,7 @@ def check_frame(res, proc: SequenceProcessor, spy: CoefficientSpy | None = None)
     c = res.counts
     assert c.dtype == np.int32
     assert np.all(c[~res.mask] == 0)
-    kind = proc.method.counts
+    kind = proc.method.kind
     if kind == "adaptive":
         assert np.all((c == 0) | ((c >= p.beta_min) & (c <= p.beta_max))), res.number
     elif kind == "fixed":
@@ -217,7 +217,7 @@ def check_frame(res, proc: SequenceProcessor, spy: CoefficientSpy | None = None)
 
 
 def run_sequence(frames, method: str, params: SSSParams, n_frames: int, spy=None) -> list[float]:
-    proc = SequenceProcessor(method, params)
+    proc = make_processor(method, params)
     spp = []
     for n in range(n_frames):
         res = proc.process(numbered(frames, n))
@@ -334,7 +334,7 @@ def test_tracked_luminance_is_bounded_for_any_exposure():
     assert TRACK_LIMIT**2 < np.finfo(np.float64).max
 
 
-# -- SequenceProcessor: parameters at their limits --------------------------------------------
+# -- the processor: parameters at their limits --------------------------------------------
 @pytest.mark.parametrize("precision", PRECISIONS)
 @pytest.mark.parametrize("method", ADAPTIVE)
 @pytest.mark.parametrize("extreme", list(PARAM_EXTREMES))
@@ -363,7 +363,7 @@ def test_random_combinations_of_extremes(monkeypatch, params, method):
     run_sequence(TORTURE16, method, params, 6, spy)
 
 
-# -- SequenceProcessor: passes at their limits ----------------------------------------------------
+# -- the processor: passes at their limits ----------------------------------------------------
 def plane(
     n: int,
     *,
@@ -437,7 +437,7 @@ def test_pass_extreme(monkeypatch, case, method, precision):
     spy = CoefficientSpy()
     spy.install(monkeypatch)
     params = SSSParams(history_precision=precision, beta_max=16, fixed_spp=4, reference_spp=16)
-    proc = SequenceProcessor(method, params)
+    proc = make_processor(method, params)
     kw = PASS_EXTREMES[case]
     for n in range(6):
         frame = plane(n, **kw)
@@ -462,8 +462,8 @@ def test_pass_extreme(monkeypatch, case, method, precision):
 def test_float16_passes_give_the_float32_result():
     light = _hdr_light() * 0.06
     for method in ADAPTIVE:
-        a = SequenceProcessor(method, SSSParams())
-        b = SequenceProcessor(method, SSSParams())
+        a = make_processor(method, SSSParams())
+        b = make_processor(method, SSSParams())
         for n in range(4):
             half = plane(n, light=light, dtype=np.float16)
             full = Frame(
@@ -485,7 +485,7 @@ def test_hard_shadow_has_zero_variance_of_g(monkeypatch):
     # Where G = 0 every frame, Var(g) = Σ_yy = 0: α falls back to ε_α/ε_α = 1
     # (or 1 with ε_α = 0: den = 0) and Res = f̄.
     for eps in (0.0, 1e-6):
-        proc = SequenceProcessor("as_ocv", SSSParams(eps_alpha=eps))
+        proc = make_processor("as_ocv", SSSParams(eps_alpha=eps))
         for n in range(6):
             res = proc.process(plane(n, light=_shadow_light(), d=(0.02, 0.02, 0.02)))
         # r_max = 16·d is ~7 pixels: columns < 8 never receive light.

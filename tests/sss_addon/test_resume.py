@@ -2,7 +2,7 @@
 
 A sequence killed at frame k (SIGKILL of the real command, or a crash in the
 middle of writing an EXR) and rerun with ``--resume`` continues after each
-method's checkpoint (``<out>/<method>/.history.npz``) and ends bit-identical
+method's checkpoint (``<out>/<method>/.checkpoint.npz``) and ends bit-identical
 to an uninterrupted run: every EXR layer and header entry and every metrics
 row, except the wall-clock timings (``pass_ms``, ``update_ms``, ``total_ms``).
 Existing outputs are never replaced without ``--overwrite``.
@@ -11,7 +11,6 @@ Existing outputs are never replaced without ``--overwrite``.
 from __future__ import annotations
 
 import csv
-import os
 import shutil
 import signal
 import subprocess
@@ -22,11 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cvsss.core.io import atomic, checkpoint
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.mc.history import History
+from cvsss.core.run import CHECKPOINT_NAME
 from cvsss.core.synthetic import sequence
 from cvsss.sss_addon.cli import main as cli
-from cvsss.sss_addon.cli.post import CHECKPOINT_NAME, load_checkpoint
 
 TIMINGS = ("cvsss.pass_ms", "cvsss.update_ms", "cvsss.total_ms")
 FRAMES = 24
@@ -109,7 +109,7 @@ def test_killed_run_resumes_bit_identical(passes, full, tmp_path):
         read_result(path)
     # The kill may land between an EXR and its checkpoint: then that frame is redone.
     done = {
-        m: load_checkpoint(out / m / CHECKPOINT_NAME)[0]["frames_done"]
+        m: checkpoint.load(out / m / CHECKPOINT_NAME)[0]["frames_done"]
         for m in ("reference", "as_ocv", "as_ccv")
     }
     assert all(d == list(range(1, len(d) + 1)) for d in done.values())
@@ -142,17 +142,18 @@ class Crash(BaseException):
 
 
 def crash_during_write(monkeypatch, after_files: int, after_bytes: int = 4096) -> None:
-    """The ``after_files``-th EXR opened for writing dies after ``after_bytes`` bytes."""
-    real_fdopen = os.fdopen
+    """The ``after_files``-th EXR staged for writing dies after ``after_bytes`` bytes."""
+    real_init = atomic._Staged.__init__
     opened = [0]
 
-    def fake_fdopen(fd, mode="r", *args, **kwargs):
-        fh = real_fdopen(fd, mode, *args, **kwargs)
-        if "w" not in mode:
-            return fh
+    def staged_init(self, path):
+        real_init(self, path)
+        if path.suffix != ".exr":
+            return
         opened[0] += 1
         if opened[0] != after_files:
-            return fh
+            return
+        fh = self.stream
         budget = [after_bytes]
 
         class Dying:
@@ -167,9 +168,9 @@ def crash_during_write(monkeypatch, after_files: int, after_bytes: int = 4096) -
             def __getattr__(self, name):
                 return getattr(fh, name)
 
-        return Dying()
+        self.stream = Dying()
 
-    monkeypatch.setattr(os, "fdopen", fake_fdopen)
+    monkeypatch.setattr(atomic._Staged, "__init__", staged_init)
 
 
 def test_crash_mid_write_leaves_no_partial_exr_float16(passes, tmp_path, monkeypatch):
@@ -195,7 +196,7 @@ def test_interrupt_exits_130_and_points_to_resume(passes, tmp_path, monkeypatch,
     def interrupt(*_args, **_kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("cvsss.sss_addon.cli.post.write_result", interrupt)
+    monkeypatch.setattr("cvsss.core.run.write_result", interrupt)
     assert cli.main(post_argv(passes, tmp_path / "out")) == 130
     assert "--resume" in capsys.readouterr().err
 
@@ -269,9 +270,10 @@ def test_resume_picks_up_frames_added_later(passes, full, tmp_path):
 
 
 def test_checkpoint_holds_history_and_rows(full):
-    state, history = load_checkpoint(full / "as_ocv" / CHECKPOINT_NAME)
+    state, arrays = checkpoint.load(full / "as_ocv" / CHECKPOINT_NAME)
+    history = History.from_arrays(arrays, "h_")
     assert state["frames_done"] == list(range(1, FRAMES + 1))
     assert [r["frame"] for r in state["rows"]] == list(range(1, FRAMES + 1))
     assert isinstance(history, History) and history.frame == FRAMES
-    ref_state, ref_history = load_checkpoint(full / "reference" / CHECKPOINT_NAME)
-    assert ref_history is None and len(ref_state["rows"]) == FRAMES
+    ref_state, ref_arrays = checkpoint.load(full / "reference" / CHECKPOINT_NAME)
+    assert ref_arrays == {} and len(ref_state["rows"]) == FRAMES

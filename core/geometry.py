@@ -1,0 +1,179 @@
+"""The SSS pixels of a frame and what every estimator needs to know about them.
+
+:func:`prepare` finds the pixels that scatter (a participating material and a
+surface) and computes, once per frame, their pixel footprint, the direct
+radius ``r0 = sqrt(w² + h²)/2`` (P Sec. 5), the distant energy ratio γ and the
+sampling bounds of the profile. The Monte Carlo estimator (core.mc) and the
+separable passes (core.separable) both work from this :class:`Geometry`.
+
+Material slots
+--------------
+The Material Index pass may hold any value up to 2³¹−1. Profiles, kernels
+and the "same material" tests work on *compact* slots: the sorted subsurface
+materials of the frame numbered 1..K, 0 for everything else
+(:func:`compact_slots`), so memory grows with the number of distinct
+materials, not with the largest index.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .frame import Frame
+    from .profiles.base import Profile
+
+
+def slot_keys(materials) -> np.ndarray:
+    """(K,) int64 Material Index values of the subsurface materials, sorted."""
+    return np.array(sorted(int(s) for s in materials), dtype=np.int64)
+
+
+def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Material Index values → compact slots: ``keys[i]`` → i + 1, anything else → 0.
+
+    Parameters
+    ----------
+    material : (...) int array, Material Index pass values
+    keys : (K,) int64, sorted Material Index values of the subsurface materials
+
+    Returns
+    -------
+    (...) int32 compact slots in [0, K].
+
+    >>> compact_slots(np.array([0, 7, 2**31 - 1, 5]), np.array([7, 2**31 - 1])).tolist()
+    [0, 1, 2, 0]
+    """
+    material = np.asarray(material)
+    if keys.size == 0:
+        return np.zeros(material.shape, np.int32)
+    pos = np.searchsorted(keys, material)
+    hit = keys[np.minimum(pos, keys.size - 1)] == material
+    return np.where(hit, pos + 1, 0).astype(np.int32)
+
+
+def compact_materials(materials) -> dict:
+    """The frame's MaterialSpecs keyed by compact slot 1..K (their own ``slot`` unchanged)."""
+    return {i: materials[int(k)] for i, k in enumerate(slot_keys(materials), 1)}
+
+
+@dataclass
+class Geometry:
+    """Per-frame quantities of the SSS pixels that do not depend on sampling.
+
+    All per-pixel arrays have leading length P (number of SSS pixels), in
+    row-major order of the image.
+
+    Attributes
+    ----------
+    shape : (H, W)
+    index : (P,) int64, flat pixel index ``y·W + x``
+    x, y : (P,) int64, column and row
+    mat : (P,) int32, compact material slot
+    slots : (H·W,) int32, compact slot of every pixel (0: no subsurface)
+    depth : (P,) float64, scene units
+    fw, fh : (P,) float64, pixel footprint, scene units per pixel
+    r0 : (P,) float64, direct-scattering radius, scene units
+    gamma : (P, 3) float64, distant energy ratio per channel
+    weight_scale : (P, 3) float64, γ_c / (distant mass of channel c)
+    lo, hi : (P, 3) float64, sampling bounds in the profile's u-space
+    chromatic : (P,) bool, the slot's channels have different profiles
+    """
+
+    shape: tuple[int, int]
+    index: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    mat: np.ndarray
+    slots: np.ndarray
+    depth: np.ndarray
+    fw: np.ndarray
+    fh: np.ndarray
+    r0: np.ndarray
+    gamma: np.ndarray
+    weight_scale: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    chromatic: np.ndarray
+
+    @cached_property
+    def gamma_sum(self) -> np.ndarray:
+        """(P,) Σ_c γ_c."""
+        return self.gamma.sum(axis=1)
+
+    @property
+    def size(self) -> int:
+        return int(self.index.shape[0])
+
+    @property
+    def gamma_max(self) -> np.ndarray:
+        """(P,) largest γ over channels (the ε_u test of P Eq. 18)."""
+        return self.gamma.max(axis=1) if self.size else np.zeros(0)
+
+    def mask(self) -> np.ndarray:
+        """(H, W) bool mask of the SSS pixels."""
+        m = np.zeros(self.shape[0] * self.shape[1], dtype=bool)
+        m[self.index] = True
+        return m.reshape(self.shape)
+
+    def to_image(self, values: np.ndarray, fill: float = 0.0, dtype=np.float32) -> np.ndarray:
+        """Scatter (P, ...) values into an (H, W, ...) image, ``fill`` elsewhere."""
+        values = np.asarray(values)
+        if np.dtype(dtype).kind == "f" and values.dtype.kind == "f":
+            big = np.finfo(dtype).max
+            values = np.clip(values, -big, big)
+        out = np.full((self.shape[0] * self.shape[1], *values.shape[1:]), fill, dtype=dtype)
+        out[self.index] = values
+        return out.reshape(*self.shape, *values.shape[1:])
+
+
+def prepare(frame: Frame, profile: Profile) -> Geometry:
+    """Find the SSS pixels of ``frame`` and their footprint, r0, γ and sampling bounds.
+
+    Parameters
+    ----------
+    frame : core.frame.Frame
+        Uses its depth (planar, scene units, inf = background), Material Index
+        pass, camera and material table.
+    profile : core.profiles.Profile
+        Built over the frame's compact slots (see module doc).
+
+    Returns
+    -------
+    Geometry
+    """
+    h, w = frame.shape
+    slots = compact_slots(frame.material.reshape(-1), slot_keys(frame.materials))
+    depth_flat = frame.depth.reshape(-1)
+    scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
+    scatters[: profile.n_slots] = profile.scatters()
+    ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(depth_flat)
+    ok[ok] = scatters[slots[ok]]
+    index = np.flatnonzero(ok).astype(np.int64)
+    mat = slots[index]
+    z = depth_flat[index].astype(np.float64)
+    fw, fh = frame.camera.footprint(z)
+    r0 = 0.5 * np.sqrt(fw * fw + fh * fh)
+    region = profile.region(r0, mat)
+    y, x = np.divmod(index, w)
+    return Geometry(
+        shape=(h, w),
+        index=index,
+        x=x,
+        y=y,
+        mat=mat,
+        slots=slots,
+        depth=z,
+        fw=fw,
+        fh=fh,
+        r0=r0,
+        gamma=region.gamma,
+        weight_scale=region.weight_scale,
+        lo=region.lo,
+        hi=region.hi,
+        chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
+    )

@@ -1,0 +1,149 @@
+"""What a method returns for a frame, and the one composite every method uses.
+
+:class:`FrameResult` holds the shaded lighting, the composite and the per-pixel
+maps of one processed frame; :func:`assemble` builds it from the per-SSS-pixel
+arrays of any method (Monte Carlo or separable), so the composite
+``Combined − albedo·B + albedo·L`` is written in one place.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .frame import Frame
+    from .geometry import Geometry
+
+_BIG = float(np.finfo(np.float32).max)
+
+
+@dataclass
+class FrameResult:
+    """Output of one processed frame. Images are (H, W[, 3]), EXR row order.
+
+    Attributes
+    ----------
+    number : int, frame number
+    method : str
+    sss : (H, W, 3) float32, L: subsurface-scattered lighting (B off SSS pixels), linear
+    composite : (H, W, 3) float32, ``Combined − albedo·B + albedo·L`` on SSS pixels, linear
+    counts : (H, W) int32, distant samples per pixel (separable: reads per pixel)
+    alpha : (H, W) float32, CV coefficient used (1 for CCV, 0 where none)
+    gamma : (H, W, 3) float32, distant energy ratio per channel
+    variance : (H, W) float32, tracked variance σ² after the update (luminance²)
+    valid_history : (H, W) bool, the history used for the counts was valid
+    mask : (H, W) bool, SSS pixels
+    spp : float, mean count over SSS pixels
+    samples : int, samples taken (separable: pixel reads)
+    pass_ms : float, wall time of the sampling step (separable: both passes) only
+    update_ms : float, wall time of history + CV bookkeeping
+    total_ms : float, wall time of the whole ``process()`` call
+    distant_share : float, share of SSS pixels with max γ ≥ ε_u
+    fallback_share : float, share of samples that fell back to the centre
+    repaired : int, input values replaced because non-finite or negative
+    """
+
+    number: int
+    method: str
+    sss: np.ndarray
+    composite: np.ndarray
+    counts: np.ndarray
+    alpha: np.ndarray
+    gamma: np.ndarray
+    variance: np.ndarray
+    valid_history: np.ndarray
+    mask: np.ndarray
+    spp: float
+    samples: int
+    pass_ms: float
+    update_ms: float
+    total_ms: float
+    distant_share: float
+    fallback_share: float
+    repaired: int = 0
+
+
+def composite(frame: Frame, index: np.ndarray, shaded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The composite and the lighting image with ``shaded`` put in at ``index``.
+
+    Parameters
+    ----------
+    frame : Frame (lighting B, albedo, Combined; linear)
+    index : (P,) int, flat indices of the SSS pixels
+    shaded : (P, 3) float, L at those pixels (linear, >= 0)
+
+    Returns
+    -------
+    composite : (H, W, 3) float32, ``Combined − albedo·B + albedo·L`` on SSS
+        pixels, ``Combined`` elsewhere; clipped to [0, float32 max]
+    sss : (H, W, 3) float32, L on SSS pixels and B elsewhere
+    """
+    shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=_BIG), 0.0, _BIG)
+    b = frame.lighting.reshape(-1, 3)[index].astype(np.float64)
+    albedo = frame.albedo.reshape(-1, 3)[index]
+    out = frame.combined.copy()
+    flat = out.reshape(-1, 3)
+    flat[index] = np.clip(flat[index] + albedo * (shaded - b), 0.0, _BIG)
+    sss = frame.lighting.copy()
+    sss.reshape(-1, 3)[index] = shaded
+    return np.maximum(out, 0.0), sss
+
+
+def assemble(
+    frame: Frame,
+    geom: Geometry,
+    method: str,
+    shaded: np.ndarray,
+    counts: np.ndarray,
+    *,
+    eps_u: float,
+    samples: int,
+    fallback_share: float,
+    pass_ms: float,
+    total_ms: float,
+    update_ms: float = 0.0,
+    alpha: np.ndarray | None = None,
+    variance: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+) -> FrameResult:
+    """A :class:`FrameResult` from the per-SSS-pixel arrays of a method.
+
+    Parameters
+    ----------
+    frame, geom : the frame and its Geometry (P SSS pixels)
+    method : str, method name
+    shaded : (P, 3) float, L per SSS pixel (linear)
+    counts : (P,) int, samples (or reads) per SSS pixel
+    eps_u : float, ε_u of the distant-share statistic
+    samples : int, samples taken
+    fallback_share : float, share of them that fell back to the centre
+    pass_ms, total_ms, update_ms : float, wall times (ms)
+    alpha, variance : (P,) float, optional (0 where not given)
+    valid : (P,) bool, optional (False where not given)
+    """
+    n = geom.size
+    comp, sss = composite(frame, geom.index, shaded)
+    zeros = np.zeros(n)
+    return FrameResult(
+        number=frame.number,
+        method=method,
+        sss=sss,
+        composite=comp,
+        counts=geom.to_image(counts, 0, np.int32),
+        alpha=geom.to_image(zeros if alpha is None else alpha),
+        gamma=geom.to_image(geom.gamma),
+        variance=geom.to_image(zeros if variance is None else variance),
+        valid_history=geom.to_image(np.zeros(n, bool) if valid is None else valid, False, bool),
+        mask=geom.mask(),
+        spp=float(np.mean(counts)) if n else 0.0,
+        samples=int(samples),
+        pass_ms=pass_ms,
+        update_ms=update_ms,
+        total_ms=total_ms,
+        distant_share=float(np.mean(geom.gamma_max >= eps_u)) if n else 0.0,
+        fallback_share=fallback_share,
+        repaired=frame.repaired,
+    )

@@ -1,0 +1,616 @@
+"""The one sequence driver: frame in → results, metric rows, checkpoint.
+
+``cvsss post``, ``cvsss render``, ``cvsss demo`` and the Blender operators all
+drive a :class:`SequenceRun`: they hand it frames in order (read from pass
+EXRs, rendered on the way, or made in memory) and it runs every method of the
+run on each, writes the results, the metric rows and a checkpoint per method,
+and resumes from those checkpoints.
+
+Layout written under ``out``::
+
+    out/<method>/0001.exr           result layers (core.io.exr.write_result)
+    out/<method>/.checkpoint.npz    history + metric rows after the last finished frame
+    out/metrics.csv                 one row per frame and method (METRICS_FIELDS)
+
+History is carried from frame to frame per method, so frames are processed in
+order. PSNR is luminance PSNR over SSS pixels of the composite against the
+``reference`` method, display-referred (core.eval.metrics.psnr); it is empty
+on frames without a reference (``reference_every``: the reference keeps no
+history, so computing it on every k-th frame only is exact and leaves the
+other methods unaffected).
+
+Existing results
+----------------
+``existing`` says what happens to results already in ``out``:
+
+``"error"``
+    Refuse (the default of ``cvsss post``): nothing is replaced unasked.
+``"resume"``
+    Continue each method after its checkpoint; bit-identical to an
+    uninterrupted run (timings aside). Refused when the checkpoint belongs
+    to another run (other passes, methods or parameters).
+``"overwrite"``
+    Start over, replacing results, checkpoints and metrics.
+``"continue"``
+    Resume where the checkpoint belongs to the same run, start over
+    otherwise (``cvsss render``, ``cvsss demo`` and the Blender operators:
+    their results are derived from the pass files they keep).
+
+Every file is written atomically (core.io.atomic), so a run killed at any
+instant leaves complete files only; temporaries of dead runs are removed.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .eval.metrics import psnr
+from .frame import Frame
+from .io import checkpoint
+from .io.atomic import make_folder, remove_stale_temporaries, write_text
+from .io.errors import CheckpointError, PassError
+from .io.exr import list_frames, quiet_native_stderr, read_frame, write_result
+from .io.sidecar import read_sidecar
+from .methods import MethodOptions, Processor, get_method, make_processor
+from .params import SSSParams
+from .result import FrameResult
+
+METRICS_FIELDS = ("frame", "method", "spp", "pass_ms", "psnr_db")
+
+#: Per-method checkpoint file (inside ``out/<method>/``).
+CHECKPOINT_NAME = ".checkpoint.npz"
+
+EXISTING = ("error", "resume", "overwrite", "continue")
+
+Log = Callable[[str], None] | None
+
+
+def format_clock(seconds: float) -> str:
+    """``m:ss`` (or ``h:mm:ss``) of a duration in seconds, for progress lines."""
+    minutes, sec = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{sec:02d}" if hours else f"{minutes}:{sec:02d}"
+
+
+def format_frame_ranges(numbers: Sequence[int], limit: int = 12) -> str:
+    """``[3, 5, 6, 7, 10]`` -> ``"3, 5-7, 10"`` (at most ``limit`` ranges shown)."""
+    ranges: list[str] = []
+    nums = sorted(numbers)
+    i = 0
+    while i < len(nums):
+        j = i
+        while j + 1 < len(nums) and nums[j + 1] == nums[j] + 1:
+            j += 1
+        ranges.append(str(nums[i]) if i == j else f"{nums[i]}-{nums[j]}")
+        i = j + 1
+    if len(ranges) > limit:
+        return ", ".join(ranges[:limit]) + f", … ({len(ranges) - limit} more ranges)"
+    return ", ".join(ranges)
+
+
+def format_metrics(rows: Sequence[dict]) -> str:
+    """CSV text of metric rows (``METRICS_FIELDS`` columns)."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=METRICS_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: row.get(k, "") for k in METRICS_FIELDS})
+    return buf.getvalue()
+
+
+def _fmt(value: float | None, digits: int = 4) -> str:
+    if value is None or value != value:  # None or NaN
+        return ""
+    return f"{value:.{digits}f}"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What a run computes; a checkpoint resumes only a run with the same spec.
+
+    Attributes
+    ----------
+    methods : method names, in the order given (the reference is added when
+        ``reference`` is set, and always processed first)
+    params : SSSParams
+    options : MethodOptions
+    reference : compute the reference (for PSNR) even if not in ``methods``
+    reference_every : the reference (and PSNR) on the 1st, (k+1)-th, … frame only
+    source : identity of the input (the resolved pass folder), part of the signature
+    """
+
+    methods: tuple[str, ...]
+    params: SSSParams = field(default_factory=SSSParams)
+    options: MethodOptions = field(default_factory=MethodOptions)
+    reference: bool = False
+    reference_every: int = 1
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        names = list(dict.fromkeys(self.methods))
+        if not names:
+            raise ValueError("at least one method is needed")
+        for name in names:
+            get_method(name)
+        if (
+            isinstance(self.reference_every, bool)
+            or not isinstance(self.reference_every, int)
+            or self.reference_every < 1
+        ):
+            raise ValueError(
+                f"reference_every must be an integer >= 1, got {self.reference_every!r}"
+            )
+        object.__setattr__(self, "methods", tuple(names))
+
+    @property
+    def order(self) -> list[str]:
+        """Processing order: the reference first (PSNR is then available at once)."""
+        names = list(self.methods)
+        need_ref = self.reference or "reference" in names
+        return (["reference"] if need_ref else []) + [m for m in names if m != "reference"]
+
+    def signature(self) -> dict:
+        """What a checkpoint must share with the run that resumes it."""
+        return {
+            "source": self.source,
+            "methods": self.order,
+            "params": self.params.to_dict(),
+            "options": self.options.to_dict(),
+            "reference_every": self.reference_every,
+        }
+
+
+def _signature_difference(old: dict, new: dict) -> str:
+    if old.get("source") != new["source"]:
+        return f"passes from {old.get('source')}, now {new['source']}"
+    if old.get("methods") != new["methods"]:
+        return f"methods {','.join(old.get('methods') or [])}, now {','.join(new['methods'])}"
+    if old.get("reference_every") != new["reference_every"]:
+        return f"reference every {old.get('reference_every')} frames, now {new['reference_every']}"
+    diffs = []
+    for group in ("params", "options"):
+        a, b = old.get(group) or {}, new[group]
+        diffs += [f"{k} {a.get(k)!r} -> {b[k]!r}" for k in b if a.get(k) != b[k]]
+    return "parameters " + ", ".join(diffs)
+
+
+@dataclass
+class _MethodRun:
+    """One method's processor and what it has finished (a prefix of the frames)."""
+
+    name: str
+    processor: Processor
+    folder: Path
+    done: list[int] = field(default_factory=list)
+    rows: list[dict] = field(default_factory=list)
+    resumed: bool = False
+
+    @property
+    def checkpoint(self) -> Path:
+        return self.folder / CHECKPOINT_NAME
+
+
+@dataclass
+class Step:
+    """What one frame of a run produced.
+
+    Attributes
+    ----------
+    index : int, 1-based position of the frame in the run
+    total : int, frames in the run
+    frame : int, frame number
+    results : dict method -> FrameResult (methods already done before a resume absent)
+    rows : list of this frame's metric rows, in processing order
+    seconds : float, wall time of the step
+    """
+
+    index: int
+    total: int
+    frame: int
+    results: dict[str, FrameResult] = field(default_factory=dict)
+    rows: list[dict] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+class SequenceRun:
+    """Every method of a run over a sequence of frames, one frame per :meth:`step`.
+
+    Parameters
+    ----------
+    out : output folder (see module doc); unused when ``write`` is false
+    spec : RunSpec
+    frames : the frame numbers of the sequence, in order
+    existing : {"error", "resume", "overwrite", "continue"}, see module doc
+    write : write results, checkpoints and metrics (False: compute only)
+    log : progress printer (one line per frame and method), or None
+
+    Raises
+    ------
+    FileExistsError
+        Results exist and ``existing`` is ``"error"``.
+    CheckpointError
+        ``"resume"`` with a checkpoint of a different run, or results without one.
+    OutputError
+        The output folder cannot be written.
+    """
+
+    def __init__(
+        self,
+        out: str | os.PathLike,
+        spec: RunSpec,
+        frames: Sequence[int],
+        *,
+        existing: str = "error",
+        write: bool = True,
+        log: Log = None,
+    ) -> None:
+        if existing not in EXISTING:
+            raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
+        self.out = Path(out)
+        self.spec = spec
+        self.numbers = [int(n) for n in frames]
+        if not self.numbers:
+            raise ValueError("a run needs at least one frame")
+        self.write = write
+        self.log = log
+        self._position = {n: i for i, n in enumerate(self.numbers)}
+        self._signature = spec.signature()
+        order = spec.order
+        self._rank = {name: i for i, name in enumerate(order)}
+        self.runs = {
+            name: _MethodRun(name, make_processor(name, spec.params, spec.options), self.out / name)
+            for name in order
+        }
+        self._started = time.perf_counter()
+        self._processed = 0
+        if write:
+            self._open(existing)
+        self._todo_frames = sum(1 for n in self.numbers if self.pending(n))
+
+    # -- opening: existing results, resume -----------------------------------------------
+    def _planned(self, run: _MethodRun) -> set[str]:
+        every = self.spec.reference_every
+        return {
+            f"{n:04d}.exr"
+            for i, n in enumerate(self.numbers)
+            if run.name != "reference" or i % every == 0
+        }
+
+    def _open(self, existing: str) -> None:
+        metrics = self.out / "metrics.csv"
+        fresh = existing == "overwrite"
+        for run in self.runs.values():
+            results = sorted(run.folder.glob("[0-9]*.exr")) if run.folder.is_dir() else []
+            has_checkpoint = run.checkpoint.exists()
+            if fresh:
+                continue
+            if existing == "continue":
+                if has_checkpoint and self._matches(run):
+                    self._resume(run)
+                continue
+            if existing == "resume" and has_checkpoint:
+                self._resume(run)
+            elif existing == "resume" and results:
+                raise CheckpointError(
+                    f"{os.fspath(run.folder)}: {len(results)} result(s) but no checkpoint "
+                    f"{CHECKPOINT_NAME} to resume from; pass --overwrite to replace them"
+                )
+            elif results or has_checkpoint:
+                first = results[0] if results else run.checkpoint
+                hint = (
+                    "pass --resume to continue the interrupted run or --overwrite to start over"
+                    if has_checkpoint
+                    else "pass --overwrite to replace them"
+                )
+                raise FileExistsError(
+                    f"{os.fspath(first)} already exists ({len(results)} result(s) in "
+                    f"{os.fspath(run.folder)}); {hint}"
+                )
+        resumed = any(run.resumed for run in self.runs.values())
+        if existing == "error" and metrics.exists() and not resumed:
+            raise FileExistsError(
+                f"{os.fspath(metrics)} already exists (from another run); pass --overwrite "
+                "to replace it or choose another --out"
+            )
+        for folder in (self.out, *(run.folder for run in self.runs.values())):
+            make_folder(folder)
+            remove_stale_temporaries(folder)
+        for run in self.runs.values():
+            if run.resumed:
+                if self.log:
+                    left = len(self.numbers) - len(run.done)
+                    where = f"after frame {run.done[-1]}" if run.done else "at the first frame"
+                    self.log(f"{run.name}: resuming {where} ({len(run.done)} done, {left} to go)")
+                continue
+            # Results this run will not write (frames no longer in the sequence, the
+            # reference's skipped frames) must not pass for this run's.
+            planned = self._planned(run)
+            for old in run.folder.glob("[0-9]*.exr"):
+                if old.stem.isdigit() and old.name not in planned:
+                    old.unlink()
+            # A fresh checkpoint marks every result file written after it as this
+            # run's (for resume) and fails early if the folder cannot be written.
+            self._save(run)
+        if not any(run.resumed for run in self.runs.values()) or fresh:
+            write_text(metrics, format_metrics([]))
+
+    def _load(self, run: _MethodRun) -> tuple[dict, dict]:
+        return checkpoint.load(run.checkpoint)
+
+    def _matches(self, run: _MethodRun) -> bool:
+        try:
+            state, _ = self._load(run)
+        except CheckpointError:
+            return False
+        done = [int(n) for n in state.get("frames_done", [])]
+        return (
+            state.get("method") == run.name
+            and state.get("signature") == self._signature
+            and self.numbers[: len(done)] == done
+        )
+
+    def _resume(self, run: _MethodRun) -> None:
+        state, arrays = self._load(run)
+        name = os.fspath(run.checkpoint)
+        if state.get("method") != run.name or state.get("signature") != self._signature:
+            what = (
+                "method " + str(state.get("method"))
+                if state.get("method") != run.name
+                else _signature_difference(state.get("signature") or {}, self._signature)
+            )
+            raise CheckpointError(
+                f"{name}: written by a different run ({what}); resume with the same "
+                "passes, methods and parameters, or pass --overwrite to start over"
+            )
+        done = [int(n) for n in state.get("frames_done", [])]
+        if self.numbers[: len(done)] != done:
+            raise CheckpointError(
+                f"{name}: covers frames {format_frame_ranges(done)} but the sequence now holds "
+                f"{format_frame_ranges(self.numbers[: len(done)]) or 'fewer frames'} in their "
+                "place; pass --overwrite to start over"
+            )
+        if done and run.processor.method.adaptive and "h_meta" not in arrays:
+            raise CheckpointError(
+                f"{name}: has no history for frame {done[-1]}; pass --overwrite to start over"
+            )
+        run.processor.restore(arrays)
+        run.done = done
+        run.rows = list(state.get("rows", []))
+        run.resumed = True
+
+    def _save(self, run: _MethodRun) -> None:
+        state = {
+            "method": run.name,
+            "frames_done": run.done,
+            "rows": run.rows,
+            "signature": self._signature,
+        }
+        checkpoint.save(run.checkpoint, state, run.processor.state())
+
+    # -- stepping ----------------------------------------------------------------------------
+    def pending(self, number: int) -> bool:
+        """Whether some method still has to process frame ``number``."""
+        i = self._position[number]
+        return any(i >= len(run.done) for run in self.runs.values())
+
+    def reference_due(self, number: int) -> bool:
+        """Whether the reference is computed on frame ``number``."""
+        return "reference" in self.runs and self._position[number] % self.spec.reference_every == 0
+
+    @property
+    def rows(self) -> list[dict]:
+        """Metric rows of every method, frame by frame in processing order."""
+        rows = [row for run in self.runs.values() for row in run.rows]
+        return sorted(
+            rows,
+            key=lambda r: (self._position.get(int(r["frame"]), -1), self._rank[r["method"]]),
+        )
+
+    def step(self, frame: Frame, source: str | None = None) -> Step:
+        """Process ``frame`` (the next pending frame of the sequence) with every method.
+
+        Parameters
+        ----------
+        frame : Frame, its number one of the run's frames, in order
+        source : name recorded in the result headers (the pass file)
+
+        Returns
+        -------
+        Step
+        """
+        number = int(frame.number)
+        if number not in self._position:
+            raise ValueError(f"frame {number} is not part of this run")
+        i = self._position[number]
+        began = time.perf_counter()
+        step = Step(i + 1, len(self.numbers), number)
+        todo = [run for run in self.runs.values() if i >= len(run.done)]
+        for run in todo:
+            if len(run.done) != i:
+                raise ValueError(
+                    f"{run.name}: frame {number} comes before frame "
+                    f"{self.numbers[len(run.done)]}, which is not done yet"
+                )
+        if not todo:
+            return step
+        self._processed += 1
+        ref = None
+        if self.reference_due(number):
+            # The reference keeps no history, so recomputing it for a method that
+            # lags behind after a resume gives the same image.
+            ref = self.runs["reference"].processor.process(frame)
+        for run in todo:
+            if run.name == "reference" and ref is None:
+                run.done.append(number)  # not due on this frame: no result, no row
+                if self.write:
+                    self._save(run)
+                continue
+            result = ref if run.name == "reference" else run.processor.process(frame)
+            value = (
+                psnr(result.composite, ref.composite, result.mask, self.spec.params.exposure)
+                if ref is not None
+                else None
+            )
+            row = {
+                "frame": number,
+                "method": run.name,
+                "spp": _fmt(result.spp),
+                "pass_ms": _fmt(result.pass_ms, 3),
+                "psnr_db": _fmt(value, 3),
+            }
+            if self.write:
+                write_result(
+                    run.folder / f"{number:04d}.exr",
+                    result,
+                    overwrite=True,
+                    metadata={"source": source or f"{number:04d}.exr"},
+                )
+            run.rows.append(row)
+            run.done.append(number)
+            if self.write:
+                self._save(run)
+            step.results[run.name] = result
+            step.rows.append(row)
+            if self.log:
+                elapsed = time.perf_counter() - self._started
+                eta = elapsed / self._processed * (self._todo_frames - self._processed)
+                self.log(
+                    f"frame {i + 1}/{len(self.numbers)} ({number}) {run.name:>9}: "
+                    f"spp {result.spp:7.2f}  pass {result.pass_ms:8.2f} ms  "
+                    f"psnr {_fmt(value, 2) or '-':>6} dB  "
+                    f"[elapsed {format_clock(elapsed)}, eta {format_clock(eta)}]"
+                )
+        if self.write:
+            write_text(self.out / "metrics.csv", format_metrics(self.rows))
+        step.seconds = time.perf_counter() - began
+        return step
+
+    def finish(self) -> list[dict]:
+        """Write the metrics when no frame needed work (all done before), and return the rows."""
+        if self.write and not self._processed:
+            write_text(self.out / "metrics.csv", format_metrics(self.rows))
+            if self.log:
+                self.log(f"all {len(self.numbers)} frames were already done; nothing to do")
+        return self.rows
+
+
+# -- a folder of pass EXRs ------------------------------------------------------------------
+def check_sequence(
+    passes: Path, frames: Sequence[tuple[int, Path]], allow_gaps: bool = False
+) -> list[int]:
+    """Refuse a sequence the history cannot run through, before any work.
+
+    Parameters
+    ----------
+    passes : the pass folder (for messages)
+    frames : (number, path) pairs from :func:`core.io.exr.list_frames`
+    allow_gaps : accept missing frame numbers
+
+    Returns
+    -------
+    list of int, the missing frame numbers (empty unless ``allow_gaps``).
+
+    Raises
+    ------
+    PassError
+        Missing frame numbers (listed; unless ``allow_gaps``), a missing or
+        invalid sidecar, or frames whose sizes differ (both files named).
+    """
+    numbers = [n for n, _ in frames]
+    have = set(numbers)
+    missing = [n for n in range(numbers[0], numbers[-1] + 1) if n not in have]
+    if missing and not allow_gaps:
+        noun = "frame" if len(missing) == 1 else "frames"
+        raise PassError(
+            f"{os.fspath(passes)}: {noun} {format_frame_ranges(missing)} missing from the "
+            f"sequence {numbers[0]}-{numbers[-1]} (the history runs frame to frame); "
+            "render them or pass --allow-gaps"
+        )
+    first_size = first_path = None
+    for _, path in frames:
+        cam = read_sidecar(path.with_suffix(".json"), exr_path=path).camera
+        if first_size is None:
+            first_size, first_path = (cam.width, cam.height), path
+        elif (cam.width, cam.height) != first_size:
+            raise PassError(
+                f"{os.fspath(path)}: frame is {cam.width}x{cam.height} but the sequence "
+                f"starts at {first_size[0]}x{first_size[1]} ({first_path.name}); every frame "
+                "of a sequence must have the same size"
+            )
+    return missing
+
+
+def run_folder(
+    passes: str | os.PathLike,
+    out: str | os.PathLike,
+    spec: RunSpec,
+    *,
+    existing: str = "error",
+    allow_gaps: bool = False,
+    log: Log = None,
+    warn: Log = None,
+) -> list[dict]:
+    """Post-process every frame of a folder of pass EXRs (the ``cvsss post`` job).
+
+    Parameters
+    ----------
+    passes : folder of ``<digits>.exr`` pass files with JSON sidecars
+    out : output folder
+    spec : RunSpec (its ``source`` is set to the resolved pass folder)
+    existing : see the module doc
+    allow_gaps : accept missing frame numbers (the history runs across the gap)
+    log : progress printer, or None
+    warn : printer of ``warning:`` lines (repaired values, gaps), or None
+
+    Returns
+    -------
+    list of metric rows (dicts with METRICS_FIELDS keys), frame by frame in
+    method order, including rows restored from checkpoints.
+
+    Raises
+    ------
+    PassError
+        Unusable input: no frames, gaps, a missing or invalid sidecar, frames
+        of different sizes, a frame that is not a readable EXR or lacks a pass
+        (finished frames and their checkpoints are kept).
+    FileExistsError, CheckpointError, OutputError
+        As :class:`SequenceRun`.
+    """
+    passes = Path(passes)
+    frames = list_frames(passes)
+    missing = check_sequence(passes, frames, allow_gaps)
+    if missing and warn:
+        warn(
+            f"warning: {os.fspath(passes)}: frames {format_frame_ranges(missing)} are missing; "
+            "the history is carried across the gaps as if the frames were consecutive"
+        )
+    spec = dataclasses.replace(spec, source=os.fspath(passes.resolve()))
+    run = SequenceRun(out, spec, [n for n, _ in frames], existing=existing, log=log)
+    shape = first = None
+    for number, path in frames:
+        if not run.pending(number):
+            continue
+        with quiet_native_stderr():
+            frame = read_frame(path, number=number)
+        if shape is None:
+            shape, first = frame.shape, path
+        elif frame.shape != shape:
+            raise PassError(
+                f"{os.fspath(path)}: frame is {frame.shape[1]}x{frame.shape[0]} but the sequence "
+                f"starts at {shape[1]}x{shape[0]} ({first.name}); every frame of a "
+                "sequence must have the same size"
+            )
+        if frame.repaired and warn:
+            warn(
+                f"warning: {os.fspath(path)}: repaired {frame.repaired} non-finite or negative "
+                "pass value(s) (colours -> 0, depth -> background, motion -> off screen)"
+            )
+        run.step(frame, source=path.name)
+    return run.finish()

@@ -1,0 +1,308 @@
+"""The separable passes: each SSS pixel reads its kernel's taps along x, then along y.
+
+Runtime, per SSS pixel: each tap's scene-unit offset becomes pixels with the
+pixel's footprint (:meth:`cvsss.core.camera.Camera.footprint` at its depth),
+the source is read at the nearest pixel (``filter="nearest"``, default: like
+the Monte Carlo estimator, B is constant per pixel, so sub-pixel taps read
+the centre) or between the two nearest pixels (``"linear"``, what GPU bilinear
+fetches do; it also spreads the sub-pixel part of the kernel over the
+neighbours), and each read follows the surface: a pixel of another material or off screen
+contributes the centre value, and so does a same-material pixel across a depth
+discontinuity. ``follow="slope"`` (default) uses the Monte Carlo estimator's
+bilateral rule, a read at screen distance r (scene units) falls back when
+``|Δz| > depth_slope·r`` (SSSParams.depth_slope), so that separable and Monte
+Carlo results differ only by their kernels; ``follow="exponential"`` is the
+supplementary's depth correction (S.E), blending the read towards the centre
+by ``1 − exp(−Δz²/(2τ))`` with τ the largest channel variance of the slot's
+projected 1D kernel, which also shrinks the kernel on steep surfaces. With ``jitter``
+the taps within ``jitter_threshold`` (33 %, as in the supplementary's Figure
+S.7; Blender EEVEE's Jitter Threshold likewise randomises the samples below a
+share of the radius, default 0.3) of the kernel range — the heavy inner
+taps whose discrete steps show as bands — are moved per pixel, pass and frame
+to a uniformly random position inside their own cell (pcg3d hash; fixed seed
+⇒ identical reruns): the staircase a step edge produces becomes, on average,
+the cell-filtered kernel, and the bands turn into unstructured noise. The
+sparse outer taps stay put (coherent reads, low weights). Results are
+clamped to >= 0 (SVD terms of rank ≥ 2 have negative lobes).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import Geometry, prepare
+from ..params import SeparableParams
+from ..profiles.base import Profile
+from ..sampling.sequence import pcg3d
+from .kernels import SlotKernel, build_kernels
+
+_INV_2_32 = 1.0 / 2**32
+
+
+@dataclass
+class _Tables:
+    """Per-slot kernel tables (K = n_slots, n taps, J terms)."""
+
+    offsets: np.ndarray  # (K, n) scene units
+    width: np.ndarray  # (K, n) cell widths where jittered, else 0
+    h: np.ndarray  # (K, n, 3J) float32, index term·3 + channel
+    v: np.ndarray  # (K, n, 3J) float32
+    inv2tau: np.ndarray  # (K,) 1/(2τ)
+
+
+def _stack(kernels: dict[int, SlotKernel], n_slots: int, params: SeparableParams) -> _Tables:
+    n, j = params.taps, params.terms
+    off = np.zeros((n_slots, n))
+    width = np.zeros((n_slots, n))
+    h = np.zeros((n_slots, n, 3 * j), np.float32)
+    v = np.zeros((n_slots, n, 3 * j), np.float32)
+    inv2tau = np.zeros(n_slots)
+    for s, k in kernels.items():
+        off[s] = k.offsets
+        if params.jitter:
+            near = np.abs(k.offsets) <= params.jitter_threshold * k.range * (1.0 + 1e-12)
+            near[n // 2] = False
+            width[s] = np.where(near, k.cells[:, 1] - k.cells[:, 0], 0.0)
+        h[s] = k.h.transpose(1, 0, 2).reshape(n, 3 * j)
+        v[s] = k.v.transpose(1, 0, 2).reshape(n, 3 * j)
+        inv2tau[s] = 0.5 / k.tau
+    return _Tables(off, width, h, v, inv2tau)
+
+
+@dataclass
+class _Pixels:
+    """SSS pixels sorted by slot, so per-slot constants apply to contiguous runs."""
+
+    order: np.ndarray  # (P,) position in the Geometry of each sorted pixel
+    runs: list  # [(slot, start, stop)]
+    lengths: np.ndarray  # (R,) run lengths
+    slots: np.ndarray  # (R,) run slots
+    index: np.ndarray  # (P,) flat pixel index
+    x: np.ndarray
+    y: np.ndarray
+    mat: np.ndarray  # (P,) int32
+    z: np.ndarray  # (P,) float32 depth
+    inv_fw: np.ndarray  # (P,) float32 pixels per scene unit
+    inv_fh: np.ndarray
+
+
+def _pixels(geom: Geometry) -> _Pixels:
+    order = np.argsort(geom.mat, kind="stable")
+    mat = geom.mat[order]
+    slots, starts, lengths = np.unique(mat, return_index=True, return_counts=True)
+    runs = [(int(s), int(a), int(a + n)) for s, a, n in zip(slots, starts, lengths)]
+    return _Pixels(
+        order,
+        runs,
+        lengths,
+        slots,
+        geom.index[order],
+        geom.x[order],
+        geom.y[order],
+        mat,
+        geom.depth[order].astype(np.float32),
+        (1.0 / geom.fw[order]).astype(np.float32),
+        (1.0 / geom.fh[order]).astype(np.float32),
+    )
+
+
+def _one_pass(
+    src: np.ndarray,
+    px: _Pixels,
+    shape: tuple[int, int],
+    depth_flat: np.ndarray,
+    mat_flat: np.ndarray,
+    tab: _Tables,
+    weights: np.ndarray,
+    axis: int,
+    jitter_key: int | None,
+    depth_slope: float | None,
+    linear: bool = False,
+) -> tuple[np.ndarray, int]:
+    """One 1D pass over the SSS pixels.
+
+    Parameters
+    ----------
+    src : (C, H·W) float32, channel-major source image
+    px : sorted SSS pixels
+    depth_flat : (H·W,) float32 depth; mat_flat : (H·W,) material slots
+    weights : (K, n, 3J) float32 tap weights; C divides 3J (the horizontal pass
+        reads the 3 lighting channels and feeds all J terms)
+    axis : 0 horizontal (x), 1 vertical (y)
+    jitter_key : per pass and frame hash key, or None (no jitter)
+    depth_slope : bilateral tolerance (follow "slope"), or None (follow "exponential")
+    linear : read between the two nearest pixels (else the nearest pixel)
+
+    Returns
+    -------
+    out : (3J, P) float32, ``Σ_i w_i·sample_i`` per term and channel, sorted order
+    fallback : reads with zero weight: other material, off screen, or a depth
+        difference that removes them entirely
+    """
+    h, w = shape
+    c_in = src.shape[0]
+    c_out = weights.shape[2]
+    reps = c_out // c_in
+    p_count = px.index.size
+    n = tab.offsets.shape[1]
+    # A read is q = base + clip(p)·stride; a p outside [0, size) fails the inside test.
+    if axis == 0:
+        coord, base, stride, size, scale = px.x, px.y * w, 1, w, px.inv_fw
+    else:
+        coord, base, stride, size, scale = px.y, px.x, w, h, px.inv_fh
+    coord_i = coord.astype(np.intp)
+    coord = coord.astype(np.float32)
+    base = base.astype(np.intp)
+    neg_inv2tau = np.repeat((-tab.inv2tau[px.slots]).astype(np.float32), px.lengths)
+    centre = np.take(src, px.index, axis=1)
+    slot_depth = {s: np.where(mat_flat == s, depth_flat, np.float32(np.inf)) for s, _, _ in px.runs}
+    out = np.zeros((reps, c_in, p_count), np.float32)
+    fallback = 0
+
+    def accumulate(i: int, val: np.ndarray) -> None:
+        for s, a, b in px.runs:
+            wi = weights[s, i].reshape(reps, c_in, 1)
+            out[:, :, a:b] += wi * val[None, :, a:b]
+
+    for i in range(n):
+        if i == n // 2:
+            accumulate(i, centre)
+            continue
+        pos = np.repeat(tab.offsets[px.slots, i].astype(np.float32), px.lengths)
+        if jitter_key is not None:
+            jw = tab.width[px.slots, i]
+            if np.any(jw > 0):
+                hx, _, _ = pcg3d(px.x, px.y, np.int64(jitter_key) * 67 + i)
+                jit = (hx * np.float32(_INV_2_32)).astype(np.float32)
+                jit -= np.float32(0.5)
+                jit *= np.repeat(jw.astype(np.float32), px.lengths)
+                pos += jit
+        pos *= scale
+        pos += coord
+        if linear:
+            p0f = np.floor(pos)
+            f = pos - p0f
+            p0 = p0f.astype(np.intp)
+            reads = ((p0, 1.0 - f), (p0 + 1, f))
+        else:
+            reads = ((np.rint(pos).astype(np.intp), None),)
+        val = np.zeros_like(centre)
+        for p, a in reads:
+            pc = np.clip(p, 0, size - 1)
+            q = pc * stride if stride != 1 else pc + base
+            if stride != 1:
+                q += base
+            # Depth of the read where it has the run's material, +inf elsewhere:
+            # the weight exp(−Δz²/2τ) is then 0 for other materials.
+            wz = np.empty(p_count, np.float32)
+            for s, ra, rb in px.runs:
+                np.take(slot_depth[s], q[ra:rb], out=wz[ra:rb])
+            wz -= px.z
+            if depth_slope is None:
+                wz *= wz
+                wz *= neg_inv2tau
+                with np.errstate(invalid="ignore", over="ignore"):
+                    np.exp(wz, out=wz)
+            else:
+                dist = np.abs(p - coord_i)
+                with np.errstate(invalid="ignore"):
+                    wz = (np.abs(wz) * scale <= np.float32(depth_slope) * dist).astype(np.float32)
+            np.copyto(wz, 0.0, where=p != pc)
+            fallback += p_count - int(np.count_nonzero(wz))
+            if a is not None:
+                wz *= a
+            d = np.take(src, q, axis=1)
+            d -= centre
+            d *= wz
+            val += d
+        val += centre
+        accumulate(i, val)
+    return out.reshape(c_out, p_count), fallback
+
+
+def apply(
+    frame,
+    profile: Profile,
+    params: SeparableParams,
+    kernels: dict[int, SlotKernel] | None = None,
+    *,
+    seed: int = 0,
+    depth_slope: float = 2.0,
+    geom: Geometry | None = None,
+) -> tuple[Geometry, np.ndarray, dict]:
+    """Separable SSS of one frame.
+
+    Parameters
+    ----------
+    frame : core.frame.Frame
+    profile : Profile of the frame's materials
+    params : SeparableParams
+    kernels : per-slot kernels (built if None; pass them to reuse across frames)
+    seed : int, jitter stream (with the frame number)
+    depth_slope : float, bilateral tolerance of ``follow="slope"`` (SSSParams.depth_slope)
+    geom : Geometry from :func:`cvsss.core.geometry.prepare`, optional
+
+    Returns
+    -------
+    geom : Geometry of the SSS pixels
+    shaded : (P, 3) float64, L per SSS pixel (linear, >= 0)
+    stats : dict with ``pass_ms`` (both passes), ``reads_per_pixel`` (2·J·taps, twice that
+        with the linear filter: what the method reads per pixel, its "sample count"),
+        ``fallback_share`` (tap reads that fell back to the centre, of all tap reads)
+    """
+    if kernels is None:
+        kernels = build_kernels(profile, params)
+    if geom is None:
+        geom = prepare(frame, profile)
+    if geom.size == 0:
+        return geom, np.zeros((0, 3)), {"pass_ms": 0.0, "reads_per_pixel": 0, "fallback_share": 0.0}
+    j = params.terms
+    tab = _stack(kernels, profile.n_slots, params)
+    px = _pixels(geom)
+    hgt, wid = geom.shape
+    light = np.ascontiguousarray(frame.lighting.reshape(-1, 3).T, dtype=np.float32)
+    depth_flat = frame.depth.reshape(-1).astype(np.float32)
+    mat_flat = geom.slots
+    key = None
+    if params.jitter:
+        key = ((int(frame.number) ^ int(seed)) & 0xFFFFFFF) * 2
+    t0 = time.perf_counter()
+    slope = depth_slope if params.follow == "slope" else None
+    linear = params.filter == "linear"
+    first, fb1 = _one_pass(
+        light, px, geom.shape, depth_flat, mat_flat, tab, tab.h, 0, key, slope, linear
+    )
+    inter = np.zeros((3 * j, hgt * wid), np.float32)
+    inter[:, px.index] = first
+    second, fb2 = _one_pass(
+        inter,
+        px,
+        geom.shape,
+        depth_flat,
+        mat_flat,
+        tab,
+        tab.v,
+        1,
+        None if key is None else key + 1,
+        slope,
+        linear,
+    )
+    pass_ms = (time.perf_counter() - t0) * 1e3
+    shaded = np.empty((geom.size, 3))
+    shaded[px.order] = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64).T
+    big = float(np.finfo(np.float32).max)
+    shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=big), 0.0, big)
+    per_read = 2 if linear else 1
+    tap_reads = 2 * per_read * (params.taps - 1) * geom.size
+    return (
+        geom,
+        shaded,
+        {
+            "pass_ms": pass_ms,
+            "reads_per_pixel": 2 * j * params.taps * per_read,
+            "fallback_share": (fb1 + fb2) / tap_reads,
+        },
+    )

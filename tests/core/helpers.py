@@ -1,0 +1,49 @@
+"""Shared helpers of the core tests (imported as ``helpers``: pytest puts tests/core on the path)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from cvsss.core.geometry import prepare
+from cvsss.core.mc.estimator import estimate_distant
+from cvsss.core.params import SSSParams
+from cvsss.core.profiles.factory import frame_profile
+
+
+def shade(frame, counts, profile=None, *, seed=0, slope=2.0):
+    """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
+
+    Parameters
+    ----------
+    frame : Frame
+    counts : int or (P,) ints, samples per SSS pixel
+    profile : Profile over the frame's compact slots (default: the frame's own)
+    seed, slope : hash seed and follow-surface depth slope
+
+    Returns
+    -------
+    geom : Geometry
+    est : DistantEstimate
+    shaded : (P, 3) float64, L = (1 − γ)·B + Î per SSS pixel
+    """
+    prof = frame_profile(frame, SSSParams()) if profile is None else profile
+    geom = prepare(frame, prof)
+    m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
+    est = estimate_distant(
+        geom,
+        frame.lighting,
+        frame.depth,
+        prof,
+        m,
+        frame=frame.number,
+        seed=seed,
+        depth_slope=slope,
+    )
+    b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
+    return geom, est, (1 - geom.gamma) * b + est.distant
+
+
+def chi2_limit(dof: int, level: float = 0.999) -> float:
+    """The ``level`` quantile of χ² with ``dof`` degrees of freedom (scipy)."""
+    return float(stats.chi2.ppf(level, dof))
