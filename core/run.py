@@ -13,11 +13,18 @@ Layout written under ``out``::
     out/metrics.csv                 one row per frame and method (METRICS_FIELDS)
 
 History is carried from frame to frame per method, so frames are processed in
-order. PSNR is luminance PSNR over SSS pixels of the composite against the
-``reference`` method, display-referred (core.eval.metrics.psnr); it is empty
-on frames without a reference (``reference_every``: the reference keeps no
-history, so computing it on every k-th frame only is exact and leaves the
-other methods unaffected).
+order. Two quality figures per frame and method (core.eval.metrics):
+
+``psnr_db``
+    *self-referenced*: luminance PSNR over SSS pixels of the composite against
+    the ``reference`` method, display-referred; empty on frames without a
+    reference (``reference_every``: the reference keeps no history, so
+    computing it on every k-th frame only is exact).
+``psnr_gt_db``, ``psnr_gt_full_db``, ``ratio_r/g/b``, ``rim_ratio``
+    *against ground truth* (Cycles' own subsurface, when a ground-truth frame
+    is handed to :meth:`SequenceRun.step`): RGB PSNR over SSS pixels and over
+    the whole image, the per-channel mean ratio ours/ground truth on SSS
+    pixels, and the luminance ratio on silhouette SSS pixels; empty without.
 
 Existing results
 ----------------
@@ -51,18 +58,33 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .eval.metrics import psnr
+import numpy as np
+
+from .eval.color import luminance
+from .eval.metrics import channel_ratio, psnr, psnr_gt, silhouette
 from .frame import Frame
 from .io import checkpoint
 from .io.atomic import make_folder, remove_stale_temporaries, write_text
 from .io.errors import CheckpointError, PassError
-from .io.exr import list_frames, quiet_native_stderr, read_frame, write_result
+from .io.exr import list_frames, quiet_native_stderr, read_combined, read_frame, write_result
 from .io.sidecar import read_sidecar
 from .methods import MethodOptions, Processor, get_method, make_processor
 from .params import SSSParams
 from .result import FrameResult
 
-METRICS_FIELDS = ("frame", "method", "spp", "pass_ms", "psnr_db")
+METRICS_FIELDS = (
+    "frame",
+    "method",
+    "spp",
+    "pass_ms",
+    "psnr_db",
+    "psnr_gt_db",
+    "psnr_gt_full_db",
+    "ratio_r",
+    "ratio_g",
+    "ratio_b",
+    "rim_ratio",
+)
 
 #: Per-method checkpoint file (inside ``out/<method>/``).
 CHECKPOINT_NAME = ".checkpoint.npz"
@@ -413,13 +435,18 @@ class SequenceRun:
             key=lambda r: (self._position.get(int(r["frame"]), -1), self._rank[r["method"]]),
         )
 
-    def step(self, frame: Frame, source: str | None = None) -> Step:
+    def step(
+        self, frame: Frame, source: str | None = None, ground_truth: np.ndarray | None = None
+    ) -> Step:
         """Process ``frame`` (the next pending frame of the sequence) with every method.
 
         Parameters
         ----------
         frame : Frame, its number one of the run's frames, in order
         source : name recorded in the result headers (the pass file)
+        ground_truth : (H, W, 3) float, optional
+            The frame path-traced by Cycles with subsurface on (linear); fills
+            the ground-truth columns of the metric rows.
 
         Returns
         -------
@@ -440,6 +467,12 @@ class SequenceRun:
                 )
         if not todo:
             return step
+        if ground_truth is not None and np.shape(ground_truth) != (*frame.shape, 3):
+            raise PassError(
+                f"frame {number}: the ground truth is {np.shape(ground_truth)[1]}x"
+                f"{np.shape(ground_truth)[0]} but the passes are {frame.shape[1]}x{frame.shape[0]}"
+            )
+        rims = None
         self._processed += 1
         ref = None
         if self.reference_due(number):
@@ -465,6 +498,10 @@ class SequenceRun:
                 "pass_ms": _fmt(result.pass_ms, 3),
                 "psnr_db": _fmt(value, 3),
             }
+            if ground_truth is not None:
+                if rims is None:
+                    rims = silhouette(result.mask, frame.material, frame.depth)
+                row.update(ground_truth_columns(result, ground_truth, rims))
             if self.write:
                 write_result(
                     run.folder / f"{number:04d}.exr",
@@ -499,6 +536,24 @@ class SequenceRun:
             if self.log:
                 self.log(f"all {len(self.numbers)} frames were already done; nothing to do")
         return self.rows
+
+
+def ground_truth_columns(result: FrameResult, ground_truth: np.ndarray, rims: np.ndarray) -> dict:
+    """The ground-truth columns of a metric row (see the module doc)."""
+    ratio = channel_ratio(result.composite, ground_truth, result.mask)
+    rim = float("nan")
+    if rims.any():
+        gt_rim = float(luminance(np.asarray(ground_truth, np.float64)[rims]).mean())
+        ours_rim = float(luminance(np.asarray(result.composite, np.float64)[rims]).mean())
+        rim = ours_rim / gt_rim if gt_rim > 0 else float("nan")
+    return {
+        "psnr_gt_db": _fmt(psnr_gt(result.composite, ground_truth, result.mask), 3),
+        "psnr_gt_full_db": _fmt(psnr_gt(result.composite, ground_truth), 3),
+        "ratio_r": _fmt(float(ratio[0])),
+        "ratio_g": _fmt(float(ratio[1])),
+        "ratio_b": _fmt(float(ratio[2])),
+        "rim_ratio": _fmt(rim),
+    }
 
 
 # -- a folder of pass EXRs ------------------------------------------------------------------
@@ -556,6 +611,7 @@ def run_folder(
     allow_gaps: bool = False,
     log: Log = None,
     warn: Log = None,
+    ground_truth: str | os.PathLike | None = None,
 ) -> list[dict]:
     """Post-process every frame of a folder of pass EXRs (the ``cvsss post`` job).
 
@@ -568,6 +624,8 @@ def run_folder(
     allow_gaps : accept missing frame numbers (the history runs across the gap)
     log : progress printer, or None
     warn : printer of ``warning:`` lines (repaired values, gaps), or None
+    ground_truth : folder of ground-truth EXRs (``####.exr``, Cycles' Combined with
+        subsurface on), optional; frames that have one get the ground-truth columns
 
     Returns
     -------
@@ -612,5 +670,11 @@ def run_folder(
                 f"warning: {os.fspath(path)}: repaired {frame.repaired} non-finite or negative "
                 "pass value(s) (colours -> 0, depth -> background, motion -> off screen)"
             )
-        run.step(frame, source=path.name)
+        gt = None
+        if ground_truth is not None:
+            gt_path = Path(ground_truth) / f"{number:04d}.exr"
+            if gt_path.exists():
+                with quiet_native_stderr():
+                    gt = read_combined(gt_path)
+        run.step(frame, source=path.name, ground_truth=gt)
     return run.finish()

@@ -44,6 +44,7 @@ __all__ = [
     "list_frames",
     "motion_from_vector",
     "quiet_native_stderr",
+    "read_combined",
     "read_frame",
     "read_result",
     "vector_from_motion",
@@ -459,6 +460,32 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         raise PassError(f"{name}: {exc}") from None
     frame.lighting_passes = tuple(lighting_passes)
     return frame
+
+
+def read_combined(path: str | os.PathLike) -> np.ndarray:
+    """The Combined pass (RGB, linear) of a Blender EXR, e.g. a ground-truth render.
+
+    Parameters
+    ----------
+    path : str or PathLike, a multilayer EXR holding a ``Combined`` pass (the
+        view layer is detected; no sidecar needed)
+
+    Returns
+    -------
+    (H, W, 3) float32, EXR row order.
+
+    Raises
+    ------
+    PassError
+        Missing, not an EXR, truncated, or without a Combined pass.
+    """
+    path = Path(path)
+    channels = _all_channels(_open_exr(path))
+    layers = [layer for layer in _layers(channels).values() if "Combined" in layer.passes]
+    if len(layers) != 1:
+        found = "no Combined pass" if not layers else "several view layers with a Combined pass"
+        raise PassError(f"{os.fspath(path)}: {found}")
+    return _pass_array(path, layers[0], "Combined").astype(np.float32)
 
 
 def read_result(path: str | os.PathLike) -> dict:

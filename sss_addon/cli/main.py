@@ -125,6 +125,15 @@ def build_parser() -> argparse.ArgumentParser:
         1,
         "with --reference: compute it (and PSNR) on every K-th frame only (default 1: every frame)",
     )
+    post.add_argument(
+        "--ground-truth",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="folder of ground-truth EXRs (####.exr: Cycles' Combined with subsurface on, as "
+        "`cvsss render --ground-truth` writes them) to measure against; default: "
+        "PASSES/../ground_truth when it exists",
+    )
     post.add_argument("--quiet", action="store_true", help="no per-frame progress")
     post.add_argument(
         "--quality",
@@ -289,6 +298,11 @@ def _post(args: argparse.Namespace) -> int:
         reference_every=args.reference_every,
     )
     existing = "overwrite" if args.overwrite else "resume" if args.resume else "error"
+    ground_truth = args.ground_truth
+    if ground_truth is None and (args.passes.parent / "ground_truth").is_dir():
+        ground_truth = args.passes.parent / "ground_truth"
+    elif ground_truth is not None and not ground_truth.is_dir():
+        raise UserError(f"--ground-truth {ground_truth}: no such folder")
     run_folder(
         args.passes,
         args.out,
@@ -297,6 +311,7 @@ def _post(args: argparse.Namespace) -> int:
         allow_gaps=args.allow_gaps,
         log=None if args.quiet else print,
         warn=lambda text: print(text, file=sys.stderr),
+        ground_truth=ground_truth,
     )
     return 0
 
