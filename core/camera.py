@@ -39,6 +39,9 @@ class Camera:
         Blender's pixel aspect ratio.
     clip_start, clip_end : float
         Clipping distances in scene units.
+    shift_x, shift_y : float
+        Blender's lens shift, in units of the larger image dimension; moves the
+        principal point (x right, y up as in Blender).
     """
 
     width: int
@@ -53,6 +56,8 @@ class Camera:
     pixel_aspect_y: float = 1.0
     clip_start: float = 0.1
     clip_end: float = 1000.0
+    shift_x: float = 0.0
+    shift_y: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -63,6 +68,10 @@ class Camera:
             raise ValueError(f"camera type must be one of {CAMERA_TYPES}, got {self.type!r}")
         if self.sensor_fit not in SENSOR_FITS:
             raise ValueError(f"sensor_fit must be one of {SENSOR_FITS}, got {self.sensor_fit!r}")
+        for name in ("shift_x", "shift_y"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ValueError(f"camera {name} must be a finite number, got {value!r}")
         for name in (
             "lens",
             "sensor_width",
@@ -117,6 +126,18 @@ class Camera:
         if self.type == "ORTHO":
             return np.full(depth.shape, w), np.full(depth.shape, h)
         return depth * w, depth * h
+
+    def unit_footprint(self) -> tuple[float, float]:
+        """(w, h): pixel footprint in scene units at unit depth (perspective) or always (ortho)."""
+        return self._unit_extent()
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        """(cx, cy): the optical axis in pixel coordinates (pixel centres at integers, y down)."""
+        big = max(self.width * self.pixel_aspect_x, self.height * self.pixel_aspect_y)
+        cx = 0.5 * (self.width - 1) - self.shift_x * big / self.pixel_aspect_x
+        cy = 0.5 * (self.height - 1) + self.shift_y * big / self.pixel_aspect_y
+        return cx, cy
 
     @property
     def horizontal_fov(self) -> float:

@@ -38,6 +38,11 @@ class MaterialSpec:
         Profile name (``"burley"``; other profiles join via core.profiles).
     options : dict
         Profile-specific options (e.g. a measured preset), JSON-serialisable.
+    weight : float
+        Subsurface Weight w in [0, 1] of the Principled BSDF: Cycles mixes
+        ``(1 − w)·diffuse + w·subsurface``, and so does the composite
+        (SPEC §11). A linked (textured) weight travels per pixel instead
+        (:attr:`Frame.sss_weight`).
     """
 
     slot: int
@@ -45,6 +50,7 @@ class MaterialSpec:
     d: tuple[float, float, float]
     profile: str = "burley"
     options: dict = field(default_factory=dict, compare=False)
+    weight: float = 1.0
 
     def __post_init__(self) -> None:
         if isinstance(self.slot, bool) or not isinstance(self.slot, int) or self.slot < 1:
@@ -55,6 +61,12 @@ class MaterialSpec:
                 f"material {self.name!r}: d must be 3 finite values >= 0, got {self.d!r}"
             )
         object.__setattr__(self, "d", d)
+        weight = self.weight
+        if isinstance(weight, bool) or not isinstance(weight, int | float) or not 0 <= weight <= 1:
+            raise ValueError(
+                f"material {self.name!r}: subsurface weight must be in [0, 1], got {weight!r}"
+            )
+        object.__setattr__(self, "weight", float(weight))
 
     def to_dict(self) -> dict:
         return {
@@ -63,6 +75,7 @@ class MaterialSpec:
             "d": list(self.d),
             "profile": self.profile,
             "options": dict(self.options),
+            "weight": self.weight,
         }
 
     @classmethod
@@ -73,6 +86,7 @@ class MaterialSpec:
             d=tuple(data["d"]),
             profile=str(data.get("profile", "burley")),
             options=dict(data.get("options", {})),
+            weight=float(data.get("weight", 1.0)),
         )
 
 
@@ -119,6 +133,11 @@ class Frame:
         motion vectors (-> off screen: the pixel's history is dropped).
     lighting_passes : tuple of str
         Passes summed into B (e.g. Diffuse Direct, Diffuse Indirect).
+    sss_weight : (H, W) float32 or None
+        Subsurface Weight per pixel in [0, 1] where a material's weight is
+        linked (textured), written by the pass render through an AOV; NaN
+        where the material's constant :attr:`MaterialSpec.weight` applies.
+        None: every material's constant weight.
     """
 
     number: int
@@ -133,6 +152,7 @@ class Frame:
     source: str | None = None
     repaired: int = 0
     lighting_passes: tuple[str, ...] = ()
+    sss_weight: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth)
@@ -175,6 +195,11 @@ class Frame:
             mv[np.any(bad, axis=-1)] = MAX_MOTION
             mv = np.clip(mv, -MAX_MOTION, MAX_MOTION)
             self.motion = mv.astype(np.float32)
+        if self.sss_weight is not None:
+            sw = np.asarray(_clean("sss_weight", self.sss_weight, shape, None), dtype=np.float32)
+            # Out-of-range weights are clipped (a texture may overshoot); NaN means
+            # "the material's constant" and stays.
+            self.sss_weight = np.clip(sw, 0.0, 1.0)
         for slot, spec in self.materials.items():
             if slot != spec.slot:
                 raise ValueError(f"material table key {slot} does not match slot {spec.slot}")

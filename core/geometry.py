@@ -6,6 +6,19 @@ radius ``r0 = sqrt(w² + h²)/2`` (P Sec. 5), the distant energy ratio γ and th
 sampling bounds of the profile. The Monte Carlo estimator (core.mc) and the
 separable passes (core.separable) both work from this :class:`Geometry`.
 
+Surface distances
+-----------------
+With ``SSSParams.distance = "surface"`` the Monte Carlo estimator weighs each
+sample by the profile at the true distance between the two surface points,
+reconstructed from the depth buffer and the camera, times the area Jacobian
+of the screen → surface mapping (SPEC §11). :class:`Surface` holds what that
+needs per frame: the camera's unit footprint and principal point, and the
+surface area each pixel covers, from one-sided differences of the
+reconstructed positions (central where both neighbours continue the surface,
+else the side with the smaller depth step, so an occlusion edge does not
+inflate it), capped at :data:`MAX_TILT` times the
+fronto-parallel area (grazing angles).
+
 Material slots
 --------------
 The Material Index pass may hold any value up to 2³¹−1. Profiles, kernels
@@ -26,6 +39,82 @@ import numpy as np
 if TYPE_CHECKING:
     from .frame import Frame
     from .profiles.base import Profile
+
+
+#: Largest surface area of a pixel, in units of its fronto-parallel footprint (~83° tilt).
+MAX_TILT = 8.0
+
+
+@dataclass
+class Surface:
+    """The depth-buffer surface of a frame (scene units).
+
+    Attributes
+    ----------
+    ortho : bool, orthographic camera
+    unit : (w, h), pixel footprint at unit depth (perspective) or always (ortho)
+    centre : (cx, cy), principal point in pixel coordinates
+    area : (H·W,) float32, surface area each pixel covers (scene units²; the
+        fronto-parallel footprint where the surface is unknown)
+    """
+
+    ortho: bool
+    unit: tuple[float, float]
+    centre: tuple[float, float]
+    area: np.ndarray
+
+
+def positions(camera, depth: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float64 camera-space points of the depth buffer (x right, y down, z depth).
+
+    Pixel centres sit at integer coordinates; background (inf depth) gives inf.
+    """
+    h, w = depth.shape
+    wu, hu = camera.unit_footprint()
+    cx, cy = camera.principal_point
+    z = np.asarray(depth, dtype=np.float64)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    scale = np.ones_like(z) if camera.type == "ORTHO" else z
+    with np.errstate(invalid="ignore"):
+        return np.stack([(xx - cx) * wu * scale, (yy - cy) * hu * scale, z], axis=-1)
+
+
+def surface(frame: Frame) -> Surface:
+    """The :class:`Surface` of ``frame`` (see the module doc)."""
+    cam = frame.camera
+    wu, hu = cam.unit_footprint()
+    ortho = cam.type == "ORTHO"
+    z = frame.depth.astype(np.float64)
+    p = positions(cam, frame.depth)
+    flat = (wu * hu) * (np.ones_like(z) if ortho else z * z)
+
+    def tangent(axis: int) -> np.ndarray:
+        """Per-pixel step along ``axis``: central where both neighbours continue the
+        surface (depth steps within a factor 2), else the side with the smaller step."""
+        fwd = np.full_like(p, np.nan)
+        bwd = np.full_like(p, np.nan)
+        if axis == 1:
+            fwd[:, :-1] = p[:, 1:] - p[:, :-1]
+            bwd[:, 1:] = p[:, 1:] - p[:, :-1]
+        else:
+            fwd[:-1] = p[1:] - p[:-1]
+            bwd[1:] = p[1:] - p[:-1]
+        with np.errstate(invalid="ignore"):
+            fwd[~np.isfinite(fwd).all(axis=-1)] = np.nan
+            bwd[~np.isfinite(bwd).all(axis=-1)] = np.nan
+            af, ab = np.abs(fwd[..., 2]), np.abs(bwd[..., 2])
+            use_bwd = np.isnan(af) | (ab < af)
+            central = (np.maximum(af, ab) <= 2.0 * np.minimum(af, ab) + 1e-6 * z) & np.isfinite(
+                af + ab
+            )
+        one = np.where(use_bwd[..., None], bwd, fwd)
+        return np.where(central[..., None], 0.5 * (fwd + bwd), one)
+
+    with np.errstate(invalid="ignore", over="ignore"):
+        area = np.linalg.norm(np.cross(tangent(1), tangent(0)), axis=-1)
+        area = np.where(np.isfinite(area) & (area > 0), np.minimum(area, MAX_TILT * flat), flat)
+    area = np.where(np.isfinite(z), area, 0.0)
+    return Surface(ortho, (wu, hu), cam.principal_point, area.reshape(-1).astype(np.float32))
 
 
 def slot_keys(materials) -> np.ndarray:
@@ -82,6 +171,9 @@ class Geometry:
     weight_scale : (P, 3) float64, γ_c / (distant mass of channel c)
     lo, hi : (P, 3) float64, sampling bounds in the profile's u-space
     chromatic : (P,) bool, the slot's channels have different profiles
+    weight : (P,) float64, Subsurface Weight w in [0, 1] (the material's, or the
+        pixel's where the frame carries a per-pixel weight)
+    surface : Surface or None, for surface-distance weights (None: planar radius)
     """
 
     shape: tuple[int, int]
@@ -99,6 +191,8 @@ class Geometry:
     lo: np.ndarray
     hi: np.ndarray
     chromatic: np.ndarray
+    weight: np.ndarray | None = None
+    surface: Surface | None = None
 
     @cached_property
     def gamma_sum(self) -> np.ndarray:
@@ -131,7 +225,7 @@ class Geometry:
         return out.reshape(*self.shape, *values.shape[1:])
 
 
-def prepare(frame: Frame, profile: Profile) -> Geometry:
+def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> Geometry:
     """Find the SSS pixels of ``frame`` and their footprint, r0, γ and sampling bounds.
 
     Parameters
@@ -141,6 +235,8 @@ def prepare(frame: Frame, profile: Profile) -> Geometry:
         pass, camera and material table.
     profile : core.profiles.Profile
         Built over the frame's compact slots (see module doc).
+    surface_distance : bool
+        Also compute the frame's :class:`Surface` (surface-distance weights).
 
     Returns
     -------
@@ -160,6 +256,12 @@ def prepare(frame: Frame, profile: Profile) -> Geometry:
     r0 = 0.5 * np.sqrt(fw * fw + fh * fh)
     region = profile.region(r0, mat)
     y, x = np.divmod(index, w)
+    keys = slot_keys(frame.materials)
+    weights = np.array([1.0] + [frame.materials[int(k)].weight for k in keys])
+    weight = weights[mat]
+    if frame.sss_weight is not None:
+        per_pixel = frame.sss_weight.reshape(-1)[index].astype(np.float64)
+        weight = np.where(np.isnan(per_pixel), weight, per_pixel)
     return Geometry(
         shape=(h, w),
         index=index,
@@ -176,4 +278,6 @@ def prepare(frame: Frame, profile: Profile) -> Geometry:
         lo=region.lo,
         hi=region.hi,
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
+        weight=weight,
+        surface=surface(frame) if surface_distance and index.size else None,
     )

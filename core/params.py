@@ -40,6 +40,7 @@ PAPER_DEFAULTS = {
 
 HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
+DISTANCES = ("surface", "planar")
 MAX_SPP = 4096
 
 #: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
@@ -376,6 +377,15 @@ class SSSParams(_Params):
         lo=0.0,
         ui_hi=1e6,
         soft=(0.0, 10.0),
+        advanced=True,
+    )
+    distance: str = param(
+        "planar",
+        label="Sample Distance",
+        help="Distance at which a sample's profile weight is taken: on the depth-buffer "
+        "surface, with the area Jacobian of the screen to surface mapping (surface), or the "
+        "sampled planar radius (planar, the paper's)",
+        choices=DISTANCES,
         advanced=True,
     )
     truncate: float = param(

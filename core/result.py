@@ -66,7 +66,9 @@ class FrameResult:
     repaired: int = 0
 
 
-def composite(frame: Frame, index: np.ndarray, shaded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def composite(
+    frame: Frame, index: np.ndarray, shaded: np.ndarray, weight: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The composite and the lighting image with ``shaded`` put in at ``index``.
 
     Parameters
@@ -74,11 +76,13 @@ def composite(frame: Frame, index: np.ndarray, shaded: np.ndarray) -> tuple[np.n
     frame : Frame (lighting B, albedo, Combined; linear)
     index : (P,) int, flat indices of the SSS pixels
     shaded : (P, 3) float, L at those pixels (linear, >= 0)
+    weight : (P,) float in [0, 1], Subsurface Weight w (None: 1)
 
     Returns
     -------
-    composite : (H, W, 3) float32, ``Combined − albedo·B + albedo·L`` on SSS
-        pixels, ``Combined`` elsewhere; clipped to [0, float32 max]
+    composite : (H, W, 3) float32, ``Combined − albedo·B + albedo·((1 − w)·B + w·L)``
+        on SSS pixels, as Cycles mixes diffuse and subsurface; ``Combined``
+        elsewhere; clipped to [0, float32 max]
     sss : (H, W, 3) float32, L on SSS pixels and B elsewhere
     """
     shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=_BIG), 0.0, _BIG)
@@ -86,7 +90,10 @@ def composite(frame: Frame, index: np.ndarray, shaded: np.ndarray) -> tuple[np.n
     albedo = frame.albedo.reshape(-1, 3)[index]
     out = frame.combined.copy()
     flat = out.reshape(-1, 3)
-    flat[index] = np.clip(flat[index] + albedo * (shaded - b), 0.0, _BIG)
+    change = shaded - b
+    if weight is not None and not np.all(weight == 1.0):
+        change *= np.asarray(weight, dtype=np.float64)[:, None]
+    flat[index] = np.clip(flat[index] + albedo * change, 0.0, _BIG)
     sss = frame.lighting.copy()
     sss.reshape(-1, 3)[index] = shaded
     return np.maximum(out, 0.0), sss
@@ -125,7 +132,7 @@ def assemble(
     valid : (P,) bool, optional (False where not given)
     """
     n = geom.size
-    comp, sss = composite(frame, geom.index, shaded)
+    comp, sss = composite(frame, geom.index, shaded, geom.weight)
     zeros = np.zeros(n)
     return FrameResult(
         number=frame.number,

@@ -81,6 +81,78 @@ def flat_plane(
     )
 
 
+def _surface_frame(z: np.ndarray, cam: Camera, d, lighting, number: int) -> Frame:
+    h, w = z.shape
+    surface = np.isfinite(z) & (z > 0)
+    if lighting is None:
+        lighting = np.ones((h, w, 3), np.float32)
+    albedo = np.full((h, w, 3), 0.8, np.float32)
+    return Frame(
+        number=number,
+        lighting=lighting,
+        albedo=albedo,
+        combined=albedo * lighting,
+        depth=np.where(surface, z, np.inf).astype(np.float32),
+        material=surface.astype(np.int32),
+        camera=cam,
+        materials={1: MaterialSpec(1, "surface", d)},
+    )
+
+
+def _view_rays(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """x and y of the view ray through each pixel centre, per unit depth (y down)."""
+    wu, hu = cam.unit_footprint()
+    cx, cy = cam.principal_point
+    yy, xx = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
+    return (xx - cx) * wu, (yy - cy) * hu
+
+
+def tilted_plane(
+    width: int = 64,
+    height: int = 48,
+    *,
+    tilt: float = 60.0,
+    depth: float = 2.0,
+    d: tuple[float, float, float] = (0.01, 0.004, 0.002),
+    lighting: np.ndarray | None = None,
+    number: int = 1,
+) -> Frame:
+    """A single-material plane through (0, 0, ``depth``) turned by ``tilt`` degrees about
+    the vertical axis (its right side recedes), seen by a 50 mm perspective camera.
+
+    Depth is the exact ray-plane intersection per pixel centre (metres).
+    """
+    cam = Camera(width=width, height=height)
+    rx, _ = _view_rays(cam)
+    a = np.radians(tilt)
+    with np.errstate(divide="ignore"):
+        z = np.cos(a) * depth / (np.cos(a) - np.sin(a) * rx)
+    z[(z <= 0) | (z > 1e3 * depth)] = np.inf
+    return _surface_frame(z, cam, d, lighting, number)
+
+
+def sphere(
+    width: int = 64,
+    height: int = 48,
+    *,
+    radius: float = 0.4,
+    depth: float = 2.0,
+    d: tuple[float, float, float] = (0.01, 0.004, 0.002),
+    lighting: np.ndarray | None = None,
+    number: int = 1,
+) -> Frame:
+    """A single-material sphere of ``radius`` centred at (0, 0, ``depth``) on an empty
+    background, seen by a 50 mm perspective camera (exact ray-sphere depth, metres)."""
+    cam = Camera(width=width, height=height)
+    rx, ry = _view_rays(cam)
+    dd = rx * rx + ry * ry + 1.0
+    disc = depth * depth - dd * (depth * depth - radius * radius)
+    with np.errstate(invalid="ignore"):
+        z = (depth - np.sqrt(disc)) / dd
+    z[~(disc >= 0)] = np.inf
+    return _surface_frame(z, cam, d, lighting, number)
+
+
 def _materials() -> dict[int, MaterialSpec]:
     return {
         1: MaterialSpec(1, "skin", tuple(blender_shape(SKIN["radius"], SKIN["scale"]))),

@@ -64,6 +64,8 @@ _PASS_ALIASES: dict[str, tuple[str, ...]] = {
     "Diffuse Color": ("Diffuse Color", "DiffCol"),
     "Material Index": ("Material Index", "IndexMA"),
     "Vector": ("Vector",),
+    # Value AOV the pass render writes where a material's Subsurface Weight is linked.
+    "SSS Weight": ("cvsss_weight",),
 }
 _ALIAS_TO_PASS = {alias: name for name, aliases in _PASS_ALIASES.items() for alias in aliases}
 # Longest first so that "Diffuse Direct" wins over a hypothetical shorter suffix.
@@ -78,6 +80,7 @@ _PASS_CHANNELS: dict[str, tuple[str, ...]] = {
     "Diffuse Color": ("R", "G", "B"),
     "Material Index": ("X",),
     "Vector": ("X", "Y", "Z", "W"),
+    "SSS Weight": ("X",),
 }
 
 #: Passes read_frame cannot do without (canonical Blender 5 names).
@@ -390,9 +393,11 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         and counts as 0 when absent), ``albedo`` = Diffuse Color,
         ``combined`` = Combined RGB, ``depth`` = Depth (background 1e10 ->
         inf), ``material`` = Material Index, ``motion`` from Vector when
-        present (:func:`motion_from_vector`), else None. The frame also gets
-        an attribute ``lighting_passes``: the tuple of passes summed into B.
-        float16 channels are read as float32.
+        present (:func:`motion_from_vector`), else None; ``sss_weight`` from the
+        value AOV ``cvsss_weight`` on the pixels of materials whose sidecar
+        entry says ``"weight_linked": true`` (NaN elsewhere), else None. The
+        frame also gets an attribute ``lighting_passes``: the tuple of passes
+        summed into B. float16 channels are read as float32.
 
     Raises
     ------
@@ -434,6 +439,13 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         lighting += arrays["Diffuse Indirect"]
         lighting_passes.append("Diffuse Indirect")
     motion = motion_from_vector(arrays["Vector"]) if "Vector" in arrays else None
+    sss_weight = None
+    linked = [s for s, spec in sidecar.materials.items() if spec.options.get("weight_linked")]
+    if linked and "SSS Weight" in arrays:
+        # Per pixel only on the materials whose weight is linked; NaN (the
+        # material's constant weight) elsewhere.
+        on = np.isin(np.rint(np.nan_to_num(arrays["Material Index"])), linked)
+        sss_weight = np.where(on, arrays["SSS Weight"], np.nan).astype(np.float32)
 
     if number is None:
         number = sidecar.frame
@@ -455,6 +467,7 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
             materials=sidecar.materials,
             motion=motion,
             source=name,
+            sss_weight=sss_weight,
         )
     except ValueError as exc:
         raise PassError(f"{name}: {exc}") from None

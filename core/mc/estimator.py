@@ -21,6 +21,17 @@ lighting for any m even when the channels differ. Samples that land off
 screen, on another material or across a depth discontinuity fall back to the
 centre ("follow surface", Jimenez et al. 2015) and so add nothing.
 
+With a :class:`~cvsss.core.geometry.Surface` in the Geometry (SSSParams
+``distance = "surface"``), channel c's weight becomes
+
+    w_c = γ_c·p̂_c(r)/q(r) · R_c(d)/R_c(r) · J,
+
+with d the distance between the two points on the depth-buffer surface and J
+the area Jacobian of the screen → surface mapping (SPEC §11): the estimator
+is then unbiased for ``B(p) + ∫ R_c(‖x_p − x_q‖)·(B(q) − B(p)) dA_q`` over the
+visible surface beyond r0 — still exact for constant lighting, and equal to
+the planar estimator on a fronto-parallel plane.
+
 Work is compacted: only pixels with m > 0 are visited, their samples are laid
 out contiguously, processed in bounded batches, and summed back with
 ``np.bincount``. Cost is proportional to Σm, never to the maximum count.
@@ -140,6 +151,8 @@ def estimate_distant(
     # Channel-major lighting: one contiguous row per channel.
     light_cm = np.ascontiguousarray(light.T, dtype=np.float32)
     depth32 = depth_flat.astype(np.float32)
+    surf = geom.surface
+    fwfh = (geom.fw[active] * geom.fh[active]).astype(np.float32)
     for a, b in _chunks(act_counts, chunk_samples):
         c = act_counts[a:b]
         n = int(c.sum())
@@ -175,20 +188,59 @@ def estimate_distant(
         qy += np.repeat(y_a[a:b], c)
         # Clip first: with a huge d (or a tiny footprint) the offset would not
         # fit the integer cast; -1 and w/h stay outside, as before the clip.
-        qx = np.rint(np.clip(qx, -1, w, out=qx), out=qx)
-        qy = np.rint(np.clip(qy, -1, h, out=qy), out=qy)
+        np.clip(qx, -1, w, out=qx)
+        np.clip(qy, -1, h, out=qy)
+        sx, sy = (qx.copy(), qy.copy()) if surf is not None else (None, None)
+        qx = np.rint(qx, out=qx)
+        qy = np.rint(qy, out=qy)
         centre_idx = np.repeat(idx_a[a:b], c)
         inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
         q = np.where(inside, qy.astype(np.intp) * w + qx.astype(np.intp), centre_idx)
         ok = inside & (np.take(mat_flat, q) == mat)
-        ok &= np.abs(np.take(depth32, q) - np.repeat(z_a[a:b], c)) <= slope * r
+        zq = np.take(depth32, q)
+        zp = np.repeat(z_a[a:b], c)
+        ok &= np.abs(zq - zp) <= slope * r
         fallback += n - int(np.count_nonzero(ok))
         # A rejected sample reads the centre, so its difference is exactly 0.
         q = np.where(ok, q, centre_idx)
         diff = np.take(light_cm, q, axis=1)
         diff -= np.repeat(np.take(light_cm, idx_a[a:b], axis=1), c, axis=1)
 
-        if chrom_a[a:b].any():
+        if surf is not None:
+            # Surface distance: the sample's point on the depth-buffer surface
+            # (its continuous screen position at the depth of the pixel it lands
+            # on) against the centre's; the profile at that distance over the
+            # profile at r (R = pdf/(2πr)) times the area Jacobian.
+            zq = np.where(ok, zq, zp)
+            px = np.repeat(x_a[a:b], c)
+            py = np.repeat(y_a[a:b], c)
+            if surf.ortho:
+                dx = (sx - px) * np.float32(surf.unit[0])
+                dy = (sy - py) * np.float32(surf.unit[1])
+                plane = np.repeat(fwfh[a:b], c)
+            else:
+                cx, cy = (np.float32(v) for v in surf.centre)
+                dx = ((sx - cx) * zq - (px - cx) * zp) * np.float32(surf.unit[0])
+                dy = ((sy - cy) * zq - (py - cy) * zp) * np.float32(surf.unit[1])
+                plane = zp * zp * np.float32(surf.unit[0] * surf.unit[1])
+            dz = zq - zp
+            dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+            np.maximum(dist, np.float32(1e-30), out=dist)
+            jac = np.take(surf.area, q) / plane
+            dens_r = profile.pdf_channels(r, mat)
+            dens = profile.pdf_channels(dist, mat)
+            if profile.pixel_weight_scale:
+                ws = np.repeat(ws_a[:, a:b], c, axis=1)
+                dens_r *= ws
+                dens *= ws
+            norm = dens_r[0] + dens_r[1] + dens_r[2]
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                scale = np.where(
+                    norm > 0, np.repeat(g_s32[a:b], c) * (r / dist) * jac / norm, np.float32(0)
+                )
+            dens *= scale
+            diff *= dens
+        elif chrom_a[a:b].any():
             dens = profile.pdf_channels(r, mat)
             if profile.pixel_weight_scale:
                 dens *= np.repeat(ws_a[:, a:b], c, axis=1)

@@ -113,7 +113,7 @@ class MonteCarloProcessor:
         t_start = time.perf_counter()
         p = self.params
         profile = self.profiles.get(frame)
-        geom = prepare(frame, profile)
+        geom = prepare(frame, profile, surface_distance=p.distance == "surface")
         hist = self._aligned_history(frame) if self.method.adaptive else None
         m, valid = self._counts(geom, hist)
         if counts is not None:
@@ -166,9 +166,14 @@ class MonteCarloProcessor:
         idx = geom.index
         # Tracked luminances are bounded so that their squares (σ², Σ) stay
         # finite in float64 whatever the exposure and HDR input.
+        # What the image shows of the distant estimate is w·Î (Subsurface Weight w),
+        # so that is what is tracked: a half-weight material needs fewer samples.
         with np.errstate(over="ignore", invalid="ignore"):
             f_bar = (distant * p.exposure) @ REC709
             g_known = ((geom.gamma * b) * p.exposure) @ REC709
+            if not np.all(geom.weight == 1.0):
+                f_bar *= geom.weight
+                g_known *= geom.weight
         f_bar = _bounded(f_bar)
         g_known = _bounded(g_known)
         alpha = np.zeros(geom.size)

@@ -157,6 +157,8 @@ def scene_camera(scene) -> Camera:
         pixel_aspect_y=float(r.pixel_aspect_y),
         clip_start=float(cam.clip_start),
         clip_end=float(cam.clip_end),
+        shift_x=float(cam.shift_x),
+        shift_y=float(cam.shift_y),
     )
 
 

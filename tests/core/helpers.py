@@ -11,7 +11,7 @@ from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import frame_profile
 
 
-def shade(frame, counts, profile=None, *, seed=0, slope=2.0):
+def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False):
     """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
 
     Parameters
@@ -20,6 +20,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0):
     counts : int or (P,) ints, samples per SSS pixel
     profile : Profile over the frame's compact slots (default: the frame's own)
     seed, slope : hash seed and follow-surface depth slope
+    surface : weigh samples by the surface distance (SSSParams.distance)
 
     Returns
     -------
@@ -28,7 +29,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0):
     shaded : (P, 3) float64, L = (1 − γ)·B + Î per SSS pixel
     """
     prof = frame_profile(frame, SSSParams()) if profile is None else profile
-    geom = prepare(frame, prof)
+    geom = prepare(frame, prof, surface_distance=surface)
     m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
     est = estimate_distant(
         geom,
