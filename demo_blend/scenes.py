@@ -33,10 +33,11 @@ regular
     3 s (off at t = 1 s, 7 s, …; on at t = 4 s, 10 s, …) and three
     flickering candles of wax with point lights at their flames.
 boids
-    A marble table top with a candle in the middle, 48 boid particles
-    (Blender's BOIDS physics) flocking around the flame under a steady
-    overhead sun: their shadows move over the marble, a skin Suzanne and
-    the candle. The particle cache is baked when the scene is built.
+    A marble table top with a candle in the middle, 48 bird-sized boid
+    particles (Blender's BOIDS physics) flocking around the flame under a
+    small lamp 1 m above the table and a weak sun: their shadows, about 8 cm
+    across, sweep over the marble, a skin Suzanne and the candle. The
+    particle cache is baked when the scene is built.
 """
 
 from __future__ import annotations
@@ -559,7 +560,15 @@ def _build_regular(scene, collection, frames: int) -> None:
     scene.camera = _camera("regular Camera", collection, (0.0, -1.5, 0.5), (0.0, 0.0, 0.12))
 
 
-@demo("boids", "48 boids flock around a candle over marble and skin, casting moving shadows")
+#: Radius of a boid (metres) and the power of the lamp above the flock (watts).
+BOID_RADIUS = 0.03
+BOIDS_LAMP_POWER = 25.0
+
+
+@demo(
+    "boids",
+    "48 boids flock around a candle under a lamp, casting large moving shadows on marble and skin",
+)
 def _build_boids(scene, collection, frames: int) -> None:
     _world(scene, 0.02)
     _table("boids", collection, diffuse_material("cvsss Floor", (0.3, 0.28, 0.26)))
@@ -571,13 +580,22 @@ def _build_boids(scene, collection, frames: int) -> None:
     flame = emission_material("cvsss Flame", (1.0, 0.6, 0.25), 30.0)
     _candle("boids", 0, collection, wax, flame, (0.05, 0.0, 0.04), 0.16, 0.035, frames)
 
-    _sun("boids Sun", collection, 0.8, (12.0, 0.0, 30.0), angle=1.0)
+    _sun("boids Sun", collection, 0.25, (12.0, 0.0, 30.0), angle=1.0)
+    # A small lamp above the flock: the boids between it and the table cast
+    # large, crisp shadows (about 1.3x their size) that sweep across the
+    # marble and the skin; the sun only fills in.
+    lamp = bpy.data.lights.new("boids Lamp", "POINT")
+    lamp.energy = BOIDS_LAMP_POWER
+    lamp.shadow_soft_size = 0.01
+    lamp_obj = bpy.data.objects.new("boids Lamp", lamp)
+    _place(lamp_obj, (-0.1, 0.05, 1.0))
+    collection.objects.link(lamp_obj)
 
-    # Boids: small dark moths attracted to the flame, flocking and keeping apart.
+    # Boids: dark birds attracted to the flame, flocking and keeping apart.
     moth = _sphere(
         "boids Moth",
         collection,
-        0.012,
+        BOID_RADIUS,
         diffuse_material("cvsss Moth", (0.08, 0.07, 0.06)),
         (0.0, 0.0, -5.0),
         8,
@@ -585,7 +603,7 @@ def _build_boids(scene, collection, frames: int) -> None:
     moth.hide_render = True  # the instanced source; its instances render
     moth.scale = (1.6, 1.0, 0.6)
     goal = bpy.data.objects.new("boids Goal", None)
-    goal.location = (0.05, 0.0, 0.3)
+    goal.location = (-0.1, 0.05, 0.3)
     collection.objects.link(goal)
 
     emitter = _mesh_object(
