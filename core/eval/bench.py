@@ -1,4 +1,4 @@
-"""Speed and the speed/accuracy trade, measured: ``cvsss bench`` (``make bench``).
+"""Speed and the speed/accuracy trade, measured: the computation behind ``cvsss bench``.
 
 Every figure is a ratio or a fit of quantities measured side by side in one
 run on this machine, so it means something on any machine:
@@ -24,13 +24,16 @@ run on this machine, so it means something on any machine:
     against resolution (time / pixel count should be flat).
 ``peak_rss_mb``
     Peak resident memory of one process post-processing one frame, per
-    method and history precision (one subprocess per configuration, VmHWM).
+    method and history precision. This module lists the configurations
+    (:func:`rss_specs`) and tabulates what a ``measure`` callable returns for
+    them (:func:`section_rss`); measuring needs one fresh process per
+    configuration, which the command line does (``sss_addon.cli.bench``).
 ``pareto``
     Mean spp, mean pass ms (3rd-order median over frames, P Sec. 7) and mean
     PSNR against the 1024-spp reference on the flashing-light sequence for
     ``fixed`` N ∈ {1…64}, the adaptive methods over σ0² ∈ {1e-2…1e-6} (and
     the extra σ0²/β_min of the quality calibration), and every separable
-    kernel when the ``separable`` method exists.
+    kernel (whose "spp" is its reads per pixel, 2·J·taps).
 
 The reference
 -------------
@@ -44,24 +47,23 @@ sample pattern (frame number 0, the reference's own seed). Otherwise the
 reference is computed frame by frame.
 
 The shipped quality calibration (``core/data/quality_calibration.json``) is
-the calibration this bench writes; ``--write-calibration`` replaces it.
+the calibration this bench produces (:func:`section_pareto`,
+``result["pareto"]["calibration"]``); ``cvsss bench --write-calibration``
+replaces it.
+
+Nothing here prints, spawns processes or draws: progress goes to an optional
+``log`` callable, and the front-end (``sss_addon.cli.bench``) writes
+``bench.json``, the calibration and the plots.
 """
 
 from __future__ import annotations
 
-import argparse
-import copy
 import dataclasses
 import gc
 import json
 import math
-import os
-import platform
-import subprocess
-import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,19 +71,33 @@ from typing import Any
 import numpy as np
 
 from ..frame import Frame
-from ..mc.processor import SequenceProcessor
-from ..methods import METHODS
-from ..params import PAPER_DEFAULTS, SSSParams
+from ..geometry import prepare
+from ..io.atomic import write_text
+from ..methods import METHODS, MethodOptions, Processor, make_processor
+from ..params import KERNELS, PAPER_DEFAULTS, SeparableParams, SSSParams
+from ..profiles.factory import frame_profile
+from ..result import FrameResult
+from ..sampling.sequence import pixel_hashes, r2_points_fixed
 from ..synthetic import scene_frame
 from . import quality
 from .metrics import median3, psnr
 
 Size = tuple[int, int]
 Log = Callable[[str], None] | None
+#: Measures the peak memory of each RSS configuration (see :func:`section_rss`).
+MeasureRss = Callable[[list[dict]], list[dict]]
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 COST_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
-REGENERATE = "cvsss bench --out out/bench"
+#: Every section, in the order they run.
+SECTIONS = ("cost", "fit", "coverage", "resolution", "rss", "pareto")
+#: Section → its key in the result (default: the section's name).
+RESULT_KEYS = {
+    "fit": "samples_time_r2",
+    "coverage": "coverage_scaling",
+    "resolution": "resolution_scaling",
+    "rss": "peak_rss_mb",
+}
 
 
 @dataclass(frozen=True)
@@ -132,7 +148,15 @@ class BenchConfig:
     check_method: str = "as_ccv"
     check_seed: int = 0x5EED
     transfer_size: Size | None = (160, 90)
-    sections: tuple[str, ...] = ("cost", "fit", "coverage", "resolution", "rss", "pareto")
+    sections: tuple[str, ...] = SECTIONS
+
+    def __post_init__(self) -> None:
+        bad = [s for s in self.sections if s not in SECTIONS]
+        if bad or not self.sections:
+            raise ValueError(
+                f"sections must be a non-empty subset of {', '.join(SECTIONS)}, "
+                f"got {self.sections!r}"
+            )
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -166,13 +190,14 @@ QUICK = BenchConfig(
 )
 
 
-def size_key(size: Size) -> str:
+def size_key(size: Sequence[int]) -> str:
+    """``"WxH"`` of a (width, height) size."""
     return f"{size[0]}x{size[1]}"
 
 
-def _progress(log: Log, start: float, text: str) -> None:
+def _progress(log: Log, start: float | None, text: str) -> None:
     if log:
-        log(f"[{time.perf_counter() - start:7.1f} s] {text}")
+        log(text if start is None else f"[{time.perf_counter() - start:7.1f} s] {text}")
 
 
 # -- running sequences --------------------------------------------------------------
@@ -193,11 +218,11 @@ class Job:
     reference : callable i -> (H, W, 3) reference composite, optional (PSNR)
     first : int, first frame index processed (methods without history skip warm-up)
     record_from : int, first frame index recorded (history warm-up before it)
-    separable : core.separable.SeparableParams, kernel of the ``separable`` method
+    separable : SeparableParams or None, kernel of the ``separable`` method
     keep_last : bool, keep the last FrameResult
-    repeats : int, times each frame is processed from the same state (a copy of
-        the processor for all but the last); timings are the minimum, which
-        discards a slow spell of the machine that hit one repetition
+    repeats : int, times each recorded frame is processed from the same state
+        (the processor's state is restored between repetitions); timings are the
+        minimum, which discards a slow spell of the machine that hit one repetition
     """
 
     label: str
@@ -207,15 +232,50 @@ class Job:
     reference: Callable[[int], np.ndarray] | None = None
     first: int = 0
     record_from: int = 0
-    separable: Any = None
+    separable: SeparableParams | None = None
     keep_last: bool = False
     repeats: int = 1
     records: list = dataclasses.field(default_factory=list)
-    last: Any = None
+    last: FrameResult | None = None
+
+    def processor(self) -> Processor:
+        """A fresh processor of this job's method."""
+        options = None if self.separable is None else MethodOptions(separable=self.separable)
+        return make_processor(self.method, self.params, options)
 
 
 #: (wall s, thread CPU s) of every ``process()`` call since the last reset.
 CPU_LEDGER: list[tuple[float, float]] = []
+
+
+def process_timed(
+    proc: Processor, frame: Frame, repeats: int = 1
+) -> tuple[FrameResult, list[tuple[float, float, float, float]]]:
+    """Process ``frame`` ``repeats`` times from the same state (the last one carries on).
+
+    Returns
+    -------
+    result : FrameResult of the last repetition
+    times : [(pass_ms, update_ms, total_ms, cpu_share)] per repetition; cpu_share
+        is the CPU time this thread got during ``process()`` over its wall time
+        (also appended to :data:`CPU_LEDGER`)
+    """
+    state = proc.state() if repeats > 1 else None
+    times = []
+    for r in range(repeats):
+        if r:
+            proc.restore(state)
+        w0, c0 = time.perf_counter(), time.thread_time()
+        res = proc.process(frame)
+        wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
+        CPU_LEDGER.append((wall, cpu))
+        times.append((res.pass_ms, res.update_ms, res.total_ms, cpu / wall if wall > 0 else 1.0))
+    return res, times
+
+
+def _rotation(i: int, n: int) -> list[int]:
+    """Job order of frame ``i``: 0…n−1 rotated by i."""
+    return [(i + j) % n for j in range(n)]
 
 
 def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
@@ -232,30 +292,18 @@ def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
     machine was busy with other processes and wall times are inflated; the
     run's overall share is reported per section, see :data:`CPU_LEDGER`).
     """
-    procs = []
-    for job in jobs:
-        kw = {} if job.separable is None else {"separable": job.separable}
-        procs.append(SequenceProcessor(job.method, job.params, **kw))
+    procs = [job.processor() for job in jobs]
     gc.collect()
-    n = len(jobs)
     for i in range(count):
-        for j in (list(range(i % n, n)) + list(range(i % n))) if n else []:
+        for j in _rotation(i, len(jobs)):
             job, proc = jobs[j], procs[j]
             if i < job.first:
                 continue
             frame = job.frame(i)
             record = i >= job.record_from
-            times = []
-            for r in range(job.repeats if record else 1):
-                run = copy.deepcopy(proc) if r < job.repeats - 1 and record else proc
-                w0, c0 = time.perf_counter(), time.thread_time()
-                res = run.process(frame)
-                wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
-                CPU_LEDGER.append((wall, cpu))
-                times.append((res.pass_ms, res.update_ms, res.total_ms, cpu / wall))
+            res, times = process_timed(proc, frame, job.repeats if record else 1)
             if not record:
                 continue
-            best = min(times, key=lambda t: t[2])
             pass_ms, update_ms, total_ms = (min(t[k] for t in times) for k in range(3))
             job.records.append(
                 {
@@ -267,7 +315,7 @@ def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
                     "total_ms": total_ms,
                     "sss_pixels": int(np.count_nonzero(res.mask)),
                     "distant_share": res.distant_share,
-                    "cpu_share": best[3],
+                    "cpu_share": min(times, key=lambda t: t[2])[3],
                     "psnr_db": None
                     if job.reference is None
                     else psnr(res.composite, job.reference(i), res.mask, job.params.exposure),
@@ -285,9 +333,12 @@ def run_sequence(
     reference: Callable[[int], np.ndarray] | None = None,
     skip: int = 0,
     keep_last: bool = False,
-    separable: Any = None,
-) -> tuple[list[dict], Any]:
-    """Process ``frames`` in order with one method: ``(records, last FrameResult)``."""
+    separable: SeparableParams | None = None,
+) -> tuple[list[dict], FrameResult | None]:
+    """Process ``frames`` in order with one method: ``(records, last FrameResult)``.
+
+    ``skip`` frames are processed (history warm-up) but not recorded.
+    """
     job = Job(
         method,
         method,
@@ -311,7 +362,7 @@ def _steady(records: list[dict]) -> list[dict]:
     return records[1:] if len(records) > 1 else records
 
 
-def _summary(records: Sequence[dict]) -> dict:
+def summarize(records: Sequence[dict]) -> dict:
     """Mean spp, pass ms (median-3 filtered, P Sec. 7), total ms and PSNR of records."""
     out = {
         "frames": len(records),
@@ -337,6 +388,31 @@ def _best_of(fn: Callable[[], Any], repeats: int = 3) -> float:
     return best
 
 
+def gather_indices(counts: np.ndarray, seed: int = 0, radius: int = 16) -> np.ndarray:
+    """Flat pixel indices of ``counts.sum()`` random local gathers (the roofline's reads).
+
+    Parameters
+    ----------
+    counts : (H, W) int, samples per pixel
+    seed : int, offset stream
+    radius : int, offsets are uniform in ``[−radius, radius]²`` pixels, clipped
+        to the image
+
+    Returns
+    -------
+    (counts.sum(),) int64, pixel ``p`` contributes ``counts[p]`` consecutive reads.
+    """
+    h, w = counts.shape
+    c = counts.reshape(-1)
+    centre = np.repeat(np.flatnonzero(c > 0), c[c > 0])
+    n = centre.size
+    rng = np.random.default_rng(seed)
+    y, x = np.divmod(centre, w)
+    qy = np.clip(y + rng.integers(-radius, radius + 1, n), 0, h - 1)
+    qx = np.clip(x + rng.integers(-radius, radius + 1, n), 0, w - 1)
+    return qy * w + qx
+
+
 def gather_ns_per_sample(
     lighting: np.ndarray, counts: np.ndarray, seed: int = 0, radius: int = 16
 ) -> float:
@@ -352,20 +428,11 @@ def gather_ns_per_sample(
     -------
     float, ns per gathered sample (best of 3); nan when no samples.
     """
-    h, w = counts.shape
-    c = counts.reshape(-1)
-    centre = np.repeat(np.flatnonzero(c > 0), c[c > 0])
-    n = centre.size
-    if n == 0:
+    q = gather_indices(counts, seed, radius)
+    if q.size == 0:
         return math.nan
-    rng = np.random.default_rng(seed)
-    y, x = np.divmod(centre, w)
-    qy = np.clip(y + rng.integers(-radius, radius + 1, n), 0, h - 1)
-    qx = np.clip(x + rng.integers(-radius, radius + 1, n), 0, w - 1)
-    q = qy * w + qx
-    del y, x, qy, qx, centre
     light = np.ascontiguousarray(lighting.reshape(-1, 3), dtype=np.float32)
-    return _best_of(lambda: np.take(light, q, axis=0)) * 1e9 / n
+    return _best_of(lambda: np.take(light, q, axis=0)) * 1e9 / q.size
 
 
 def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
@@ -377,32 +444,29 @@ def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
     pass over a per-sample array: NumPy dispatch + memory traffic). A block
     whose API changed is reported as unavailable instead of failing.
     """
-    from ..mc.estimator import prepare
-    from ..mc.processor import default_profile
-    from ..profiles.burley import BurleyProfile
-    from ..sampling.sequence import pixel_offsets, r2_points
-
     out: dict[str, Any] = {"samples": n}
     rng = np.random.default_rng(1)
-    profile = default_profile(frame, params)
-    geom = prepare(frame.depth, frame.material, frame.camera, profile)
+    profile = frame_profile(frame, params)
+    geom = prepare(frame, profile)
     if geom.size == 0:
         return out
-    fast = BurleyProfile(frame.d_table(), truncate=params.truncate, inverse="fast")
+    fast = frame_profile(frame, params.replace(burley_inverse="fast"))
     p = rng.integers(0, geom.size, n)
     k = rng.integers(1, 65, n)
     a, b = rng.random(n), rng.random(n)
+    hx, hy = pixel_hashes(geom.x[p], geom.y[p], 1, params.seed)
+    channel = np.zeros(n, np.int64)
     blocks: dict[str, Callable[[], Any]] = {
         "stream_multiply_f64": lambda: a * b,
         "log_f64": lambda: np.log(a),
         # Hashed once per active pixel (not per sample) by the estimator.
-        "hash_offsets_per_pixel": lambda: pixel_offsets(geom.x[p], geom.y[p], 1, params.seed),
-        "r2_points": lambda: r2_points(a, b, k),
+        "hash_offsets_per_pixel": lambda: pixel_hashes(geom.x[p], geom.y[p], 1, params.seed),
+        "r2_points": lambda: r2_points_fixed(hx, hy, k, dtype=np.float32),
         "profile_sample": lambda: profile.sample(
-            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], np.zeros(n, np.int64)
+            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], channel
         ),
         "profile_sample_fast_inverse": lambda: fast.sample(
-            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], np.zeros(n, np.int64)
+            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], channel
         ),
         "profile_pdf": lambda: profile.pdf(a * geom.r0[p], geom.mat[p]),
         "gather_take": lambda: np.take(
@@ -413,14 +477,14 @@ def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
     for name, fn in blocks.items():
         try:
             out[name] = _best_of(fn) * 1e9 / n
-        except Exception as exc:  # the lead may change an API under us: report it
+        except Exception as exc:  # a profile's API may change under us: report it
             out[name] = None
             out.setdefault("unavailable", {})[name] = f"{type(exc).__name__}: {exc}"
     return out
 
 
 # -- sections -------------------------------------------------------------------------
-def section_cost(cfg: BenchConfig, log: Log, start: float) -> dict:
+def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) -> dict:
     """ns per sample, the gather roofline and the overhead fraction at ``cost_sizes``."""
     out: dict[str, Any] = {"frames": cfg.cost_frames, "fixed_spp": cfg.cost_fixed_spp, "sizes": {}}
     base = SSSParams(seed=cfg.seed, fixed_spp=cfg.cost_fixed_spp)
@@ -488,7 +552,7 @@ def linear_fit(x: np.ndarray, y: np.ndarray) -> dict:
     }
 
 
-def section_fit(cfg: BenchConfig, log: Log, start: float) -> dict:
+def section_fit(cfg: BenchConfig, log: Log = None, start: float | None = None) -> dict:
     """Sampling-step time against samples across fixed N and the adaptive methods."""
     frames = _frames(cfg.scene, cfg.fit_size, cfg.fit_frames)
     base = SSSParams(seed=cfg.seed)
@@ -530,24 +594,57 @@ def section_fit(cfg: BenchConfig, log: Log, start: float) -> dict:
     }
 
 
-def section_coverage(cfg: BenchConfig, log: Log, start: float) -> dict:
+def _scaling_row(records: list[dict], size: Size) -> dict:
+    sss = _median(records, "sss_pixels")
+    distant = float(np.median([r["sss_pixels"] * r["distant_share"] for r in records]))
+    total, pss = _median(records, "total_ms"), _median(records, "pass_ms")
+    samples = _median(records, "samples")
+    return {
+        "size": size_key(size),
+        "pixels": size[0] * size[1],
+        "sss_pixels": sss,
+        "distant_pixels": distant,
+        "samples": samples,
+        "spp": _median(records, "spp"),
+        "total_ms": total,
+        "pass_ms": pss,
+        "ns_per_sss_pixel": total * 1e6 / sss if sss else math.nan,
+        "ns_per_sample": pss * 1e6 / samples if samples else math.nan,
+    }
+
+
+def _scaling_rows(
+    cfg: BenchConfig,
+    method: str,
+    runs: Sequence[tuple[str, SSSParams, Callable[[int], Frame], Size]],
+    count: int,
+) -> list[dict]:
+    """Run ``(label, params, frame source, size)`` configurations interleaved over
+    ``count`` frames; one :func:`_scaling_row` each (frames after the first)."""
+    jobs = run_jobs(
+        [
+            Job(label, method, params, source, repeats=cfg.repeats)
+            for label, params, source, _ in runs
+        ],
+        count,
+    )
+    return [_scaling_row(_steady(job.records), run[3]) for job, run in zip(jobs, runs)]
+
+
+def section_coverage(cfg: BenchConfig, log: Log = None, start: float | None = None) -> dict:
     """Time against SSS coverage, and against the share of pixels above ε_u."""
     method = cfg.scaling_method
     base = SSSParams(seed=cfg.seed)
     size, count = cfg.coverage_size, cfg.scaling_frames
     seqs = {cov: _frames(cfg.scene, size, count, coverage=cov) for cov in cfg.coverages}
-    jobs = run_jobs(
-        [
-            Job(f"{cov:.0%}", method, base, seqs[cov].__getitem__, repeats=cfg.repeats)
-            for cov in cfg.coverages
-        ],
+    rows = _scaling_rows(
+        cfg,
+        method,
+        [(f"{cov:.0%}", base, seqs[cov].__getitem__, size) for cov in cfg.coverages],
         count,
     )
-    rows = []
-    for cov, job in zip(cfg.coverages, jobs):
-        row = _scaling_row(_steady(job.records), size)
+    for cov, row in zip(cfg.coverages, rows):
         row["coverage"] = cov
-        rows.append(row)
         _progress(
             log,
             start,
@@ -571,26 +668,20 @@ def section_coverage(cfg: BenchConfig, log: Log, start: float) -> dict:
     # median max γ leaves about half of the SSS pixels without distant samples.
     del seqs
     frames = _frames(cfg.scene, size, count)
-    probe = SequenceProcessor(method, base).process(frames[0])
-    gmax = probe.gamma.astype(np.float64).max(axis=-1)[probe.mask]
-    eps = float(np.median(gmax))
+    probe = make_processor(method, base).process(frames[0])
+    eps = float(np.median(probe.gamma.astype(np.float64).max(axis=-1)[probe.mask]))
     del probe
     if 0.0 < eps <= 1.0:
-        jobs = run_jobs(
+        a, b = _scaling_rows(
+            cfg,
+            method,
             [
-                Job("default ε_u", method, base, frames.__getitem__, repeats=cfg.repeats),
-                Job(
-                    "median ε_u",
-                    method,
-                    base.replace(eps_u=eps),
-                    frames.__getitem__,
-                    repeats=cfg.repeats,
-                ),
+                ("default ε_u", base, frames.__getitem__, size),
+                ("median ε_u", base.replace(eps_u=eps), frames.__getitem__, size),
             ],
             count,
         )
-        a, b = (_scaling_row(_steady(j.records), size) for j in jobs)
-        out["eps_u"] = {
+        out["eps_u"] = e = {
             "scene": f"synthetic {cfg.scene}",
             "eps_u": eps,
             "default_eps_u": base.eps_u,
@@ -601,7 +692,6 @@ def section_coverage(cfg: BenchConfig, log: Log, start: float) -> dict:
             "pass_ratio": b["pass_ms"] / a["pass_ms"],
             "time_ratio": b["total_ms"] / a["total_ms"],
         }
-        e = out["eps_u"]
         _progress(
             log,
             start,
@@ -612,26 +702,7 @@ def section_coverage(cfg: BenchConfig, log: Log, start: float) -> dict:
     return out
 
 
-def _scaling_row(records: list[dict], size: Size) -> dict:
-    sss = _median(records, "sss_pixels")
-    distant = float(np.median([r["sss_pixels"] * r["distant_share"] for r in records]))
-    total, pss = _median(records, "total_ms"), _median(records, "pass_ms")
-    samples = _median(records, "samples")
-    return {
-        "size": size_key(size),
-        "pixels": size[0] * size[1],
-        "sss_pixels": sss,
-        "distant_pixels": distant,
-        "samples": samples,
-        "spp": _median(records, "spp"),
-        "total_ms": total,
-        "pass_ms": pss,
-        "ns_per_sss_pixel": total * 1e6 / sss if sss else math.nan,
-        "ns_per_sample": pss * 1e6 / samples if samples else math.nan,
-    }
-
-
-def section_resolution(cfg: BenchConfig, log: Log, start: float) -> dict:
+def section_resolution(cfg: BenchConfig, log: Log = None, start: float | None = None) -> dict:
     """Time per frame over resolution, divided by the pixel count."""
     method = cfg.scaling_method
     base = SSSParams(seed=cfg.seed)
@@ -639,19 +710,15 @@ def section_resolution(cfg: BenchConfig, log: Log, start: float) -> dict:
     def source(size: Size) -> Callable[[int], Frame]:
         return lambda i: scene_frame(cfg.scene, i + 1, size[0], size[1])
 
-    jobs = run_jobs(
-        [
-            Job(size_key(sz), method, base, source(sz), repeats=cfg.repeats)
-            for sz in cfg.scaling_sizes
-        ],
+    rows = _scaling_rows(
+        cfg,
+        method,
+        [(size_key(sz), base, source(sz), sz) for sz in cfg.scaling_sizes],
         cfg.scaling_frames,
     )
-    rows = []
-    for size, job in zip(cfg.scaling_sizes, jobs):
-        row = _scaling_row(_steady(job.records), size)
+    for size, row in zip(cfg.scaling_sizes, rows):
         row["ns_per_pixel"] = row["total_ms"] * 1e6 / row["pixels"]
         row["pass_ns_per_pixel"] = row["pass_ms"] * 1e6 / row["pixels"]
-        rows.append(row)
         _progress(
             log,
             start,
@@ -670,119 +737,53 @@ def section_resolution(cfg: BenchConfig, log: Log, start: float) -> dict:
 
 
 # -- memory ------------------------------------------------------------------------
-def _proc_status(field_name: str) -> float | None:
-    """A ``/proc/self/status`` field in MiB (Linux), else None."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith(field_name + ":"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
+def rss_specs(cfg: BenchConfig) -> tuple[list[dict], dict | None]:
+    """The memory section's configurations, and a two-frame check of one of them.
 
-
-def _reset_peak() -> bool:
-    """Reset VmHWM to the current RSS (Linux ≥ 4.0); False when unsupported."""
-    try:
-        with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
-            fh.write("5")
-        return True
-    except OSError:
-        return False
-
-
-def _max_rss_mb() -> float:
-    import resource
-
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
-
-
-def rss_worker(spec: dict) -> dict:
-    """Post-process frames of one configuration and report this process's memory.
-
-    Run in a fresh subprocess per configuration (``python -m cvsss.core.eval.bench
-    --rss-worker JSON``) so configurations do not contaminate each other.
-    Reports the peak over the whole process (interpreter, inputs, post-process)
-    and, where Linux allows resetting the high-water mark, the peak while
-    post-processing with the frame already in memory.
+    Returns
+    -------
+    specs : [{"size": [w, h], "method", "precision", "frames": 1, "scene", "seed"}],
+        per size, method (plus ``separable`` with its default kernel when
+        ``cfg.rss_separable``) and history precision (both for adaptive methods)
+    check : the first adaptive spec with ``frames = 2``, or None. One frame
+        suffices: the first frame allocates every buffer (the history, its
+        reprojected copy, sample batches bounded by chunk_samples); the check
+        measures a second frame to show it.
     """
-    w, h = spec["size"]
-    params = SSSParams(history_precision=spec["precision"], seed=spec.get("seed", 0))
-    proc = SequenceProcessor(spec["method"], params)
-    baseline = _proc_status("VmRSS")
-    peak_input = 0.0
-    post_peak = None
-    input_mb = history_mb = 0.0
-    for n in range(1, spec["frames"] + 1):
-        frame = scene_frame(spec["scene"], n, w, h)
-        input_mb = (
-            sum(
-                a.nbytes
-                for a in (frame.lighting, frame.albedo, frame.combined, frame.depth, frame.material)
-            )
-            / 2**20
-        )
-        peak_input = max(peak_input, _proc_status("VmHWM") or 0.0)
-        reset = _reset_peak()
-        result = proc.process(frame)
-        del result, frame
-        if reset:
-            post_peak = max(post_peak or 0.0, _proc_status("VmHWM") or 0.0)
-    if proc.history is not None:
-        history_mb = proc.history.nbytes() / 2**20
-    peak = max(peak_input, post_peak or 0.0, 0.0)
-    if peak == 0.0:
-        peak = _max_rss_mb()
-    return {
-        "peak_rss_mb": peak,
-        "post_process_peak_mb": post_peak,
-        "baseline_mb": baseline,
-        "input_mb": input_mb,
-        "history_mb": history_mb,
-        "source": ("VmHWM" if baseline is not None else "ru_maxrss"),
-    }
-
-
-def _spawn_rss(spec: dict) -> dict:
-    cmd = [sys.executable, "-m", f"{__package__}.bench", "--rss-worker", json.dumps(spec)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1800, check=False)
-    if proc.returncode != 0:
-        return {"error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def section_rss(cfg: BenchConfig, log: Log, start: float) -> dict:
-    """Peak RSS per size, method and history precision, one subprocess each."""
-    specs = []
     methods = list(cfg.rss_methods)
-    if cfg.rss_separable and "separable" not in methods and separable_kernels()[0]:
-        methods.append("separable")  # its default kernel
-    for size in cfg.rss_sizes:
-        for method in methods:
-            precisions = ("float32", "float16") if METHODS[method].adaptive else ("float32",)
-            for prec in precisions:
-                specs.append(
-                    {
-                        "size": list(size),
-                        "method": method,
-                        "precision": prec,
-                        "frames": 1,
-                        "scene": cfg.scene,
-                        "seed": cfg.seed,
-                    }
-                )
-    # One frame suffices: the first frame allocates every buffer (the history,
-    # its reprojected copy, sample batches bounded by chunk_samples); the check
-    # below measures a second frame at the smallest size.
-    check = dict(specs[0], frames=2) if specs else None
-    if check is not None and METHODS[check["method"]].adaptive is False:
-        ad = next((s for s in specs if METHODS[s["method"]].adaptive), None)
-        check = dict(ad, frames=2) if ad else None
-    jobs = [*specs, check] if check else specs
-    with ThreadPoolExecutor(max_workers=max(1, cfg.rss_workers)) as pool:
-        results = list(pool.map(_spawn_rss, jobs))
+    if cfg.rss_separable and "separable" not in methods:
+        methods.append("separable")
+    specs = [
+        {
+            "size": list(size),
+            "method": method,
+            "precision": prec,
+            "frames": 1,
+            "scene": cfg.scene,
+            "seed": cfg.seed,
+        }
+        for size in cfg.rss_sizes
+        for method in methods
+        for prec in (("float32", "float16") if METHODS[method].adaptive else ("float32",))
+    ]
+    adaptive = next((s for s in specs if METHODS[s["method"]].adaptive), None)
+    return specs, None if adaptive is None else dict(adaptive, frames=2)
+
+
+def section_rss(
+    cfg: BenchConfig, measure: MeasureRss, log: Log = None, start: float | None = None
+) -> dict:
+    """Peak RSS per size, method and history precision.
+
+    Parameters
+    ----------
+    cfg : BenchConfig
+    measure : callable [spec] -> [result], the memory of one fresh process per
+        spec of :func:`rss_specs` (and the check), in order; a result holds
+        ``peak_rss_mb`` (and whatever else the measurement reports) or ``error``
+    """
+    specs, check = rss_specs(cfg)
+    results = measure([*specs, check] if check else specs)
     table: dict[str, dict] = {}
     rows = []
     for spec, res in zip(specs, results):
@@ -817,11 +818,17 @@ def section_rss(cfg: BenchConfig, log: Log, start: float) -> dict:
 
 
 # -- reference ---------------------------------------------------------------------
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return (a is None and b is None) or (
+        a is not None and b is not None and np.array_equal(a, b, equal_nan=True)
+    )
+
+
 def _affine_coefficients(frames: Sequence[Frame], tol: float = 1e-5):
     """``(a, b, s)`` with ``B_t = B_a + s_t (B_b − B_a)`` for every frame, or None.
 
-    Also requires the same geometry, albedo and materials in every frame and
-    the same relation for Combined.
+    Also requires the same geometry, albedo, materials and Subsurface Weight in
+    every frame and the same relation for Combined.
     """
     if len(frames) < 3:
         return None
@@ -835,6 +842,7 @@ def _affine_coefficients(frames: Sequence[Frame], tol: float = 1e-5):
             or not np.array_equal(f.depth, f0.depth)
             or not np.array_equal(f.material, f0.material)
             or not np.array_equal(f.albedo, f0.albedo)
+            or not _same(f.sss_weight, f0.sss_weight)
         ):
             return None
     total = np.array([float(f.lighting.sum(dtype=np.float64)) for f in frames])
@@ -860,7 +868,7 @@ def _affine_coefficients(frames: Sequence[Frame], tol: float = 1e-5):
 
 
 def reference_composites(
-    frames: Sequence[Frame], params: SSSParams, log: Log = None, start: float = 0.0
+    frames: Sequence[Frame], params: SSSParams, log: Log = None, start: float | None = None
 ) -> tuple[Callable[[int], np.ndarray], dict]:
     """The reference composite of each frame (see module docstring) and how it was made.
 
@@ -870,7 +878,7 @@ def reference_composites(
     info : dict (``mode``: ``"affine"`` or ``"per_frame"``, ``spp``, ``seconds``)
     """
     t0 = time.perf_counter()
-    proc = SequenceProcessor("reference", params)
+    proc = make_processor("reference", params)
     affine = _affine_coefficients(frames)
     if affine is not None:
         a, b, s = affine
@@ -890,40 +898,26 @@ def reference_composites(
     _progress(
         log,
         start,
-        f"reference ({info['mode']}, {params.reference_spp} spp) in " f"{info['seconds']:.1f} s",
+        f"reference ({info['mode']}, {params.reference_spp} spp) in {info['seconds']:.1f} s",
     )
     return ref, info
 
 
-# -- separable kernels (issue #6 includes them when the method exists) --------------
-def separable_kernels() -> tuple[list[tuple[str, Any]], str]:
-    """``[(kernel name, SeparableParams)]`` of every separable kernel, and a note.
-
-    Empty (with the reason) while ``separable`` is not in the method table or
-    core/separable.py does not expose its kernels to SequenceProcessor.
-    """
-    import inspect
-
-    if "separable" not in METHODS:
-        return [], "core.methods.METHODS has no 'separable' method yet; separable kernels skipped"
-    try:
-        from ..separable import kernels as sep
-    except ImportError as exc:
-        return [], f"core/separable.py is not importable ({exc}); separable kernels skipped"
-    kernels = getattr(sep, "KERNELS", None)
-    sep_params = getattr(sep, "SeparableParams", None)
-    if not kernels or sep_params is None:
-        return [], "core/separable.py exposes no KERNELS / SeparableParams; separable skipped"
-    if "separable" not in inspect.signature(SequenceProcessor).parameters:
-        return [], "SequenceProcessor takes no separable parameters yet; separable skipped"
-    runs = [(name, sep_params(kernel=name)) for name in kernels]
+def separable_kernels() -> tuple[list[tuple[str, SeparableParams]], str]:
+    """``[(kernel name, SeparableParams)]`` of every separable kernel, and a note."""
+    runs = [(name, SeparableParams(kernel=name)) for name in KERNELS]
     taps = runs[0][1].taps if runs else 0
     return runs, f"{len(runs)} separable kernels ({taps} taps, no jitter)"
 
 
 # -- the Pareto front and the quality calibration ---------------------------------
 def pareto_front(points: Sequence[dict]) -> list[int]:
-    """Indices of points no other point beats in both pass time and PSNR."""
+    """Indices of points no other point beats in both pass time and PSNR, fastest first.
+
+    >>> pareto_front([{"pass_ms": 1, "psnr_db": 30}, {"pass_ms": 2, "psnr_db": 20},
+    ...               {"pass_ms": 3, "psnr_db": 40}])
+    [0, 2]
+    """
     order = sorted(range(len(points)), key=lambda i: (points[i]["pass_ms"], -points[i]["psnr_db"]))
     front, best = [], -math.inf
     for i in order:
@@ -940,11 +934,11 @@ def fixed_time_at(points: Sequence[dict], psnr_db: float) -> tuple[float, bool]:
     for at least that PSNR) before interpolating.
     """
     fx = sorted((p for p in points if p["method"] == "fixed"), key=lambda p: p["psnr_db"])
+    if len(fx) < 2:
+        return math.nan, True
     ps = np.array([p["psnr_db"] for p in fx])
     lt = np.log([p["pass_ms"] for p in fx])
     lt = np.minimum.accumulate(lt[::-1])[::-1]
-    if len(ps) < 2:
-        return math.nan, True
     if ps[0] <= psnr_db <= ps[-1]:
         return float(np.exp(np.interp(psnr_db, ps, lt))), False
     i = (0, 1) if psnr_db < ps[0] else (-2, -1)
@@ -952,7 +946,9 @@ def fixed_time_at(points: Sequence[dict], psnr_db: float) -> tuple[float, bool]:
     return float(np.exp(lt[i[0]] + slope * (psnr_db - ps[i[0]]))), True
 
 
-def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None = None) -> dict:
+def section_pareto(
+    cfg: BenchConfig, log: Log = None, start: float | None = None, passes: Path | None = None
+) -> dict:
     """Pareto points, the quality calibration and the quality checks."""
     base = SSSParams(seed=cfg.seed)
     if passes is not None:
@@ -980,7 +976,7 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
         family: str,
         param: str,
         value: Any,
-        separable: Any = None,
+        separable: SeparableParams | None = None,
     ) -> None:
         # Methods without history skip the warm-up frames: they would only cost time.
         first = 0 if METHODS[method].adaptive else warm
@@ -1013,38 +1009,21 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
     for n in cfg.fixed_spp:
         add("fixed", base.replace(fixed_spp=n), f"fixed N={n}", "sweep", "fixed_spp", n)
     for method in ADAPTIVE:
-        for s0 in cfg.sigmas:
-            add(
-                method,
-                base.replace(target_variance=s0),
-                f"{method} σ0²={s0:g}",
-                "sweep",
-                "target_variance",
-                s0,
-            )
-        for s0 in cfg.calib_extra_sigmas:
-            add(
-                method,
-                base.replace(target_variance=s0),
-                f"{method} σ0²={s0:g}",
-                "calibration",
-                "target_variance",
-                s0,
-            )
-        for beta_min, sig in cfg.calib_families:
-            for s0 in sig:
-                add(
-                    method,
-                    base.replace(target_variance=s0, beta_min=beta_min),
-                    f"{method} σ0²={s0:g} β_min={beta_min}",
-                    "calibration",
-                    "target_variance",
-                    s0,
-                )
+        # (σ0², β_min or None for the default, family)
+        sweeps = [(s0, None, "sweep") for s0 in cfg.sigmas]
+        sweeps += [(s0, None, "calibration") for s0 in cfg.calib_extra_sigmas]
+        sweeps += [(s0, bm, "calibration") for bm, sig in cfg.calib_families for s0 in sig]
+        for s0, beta_min, family in sweeps:
+            params = base.replace(target_variance=s0)
+            label = f"{method} σ0²={s0:g}"
+            if beta_min is not None:
+                params = params.replace(beta_min=beta_min)
+                label += f" β_min={beta_min}"
+            add(method, params, label, family, "target_variance", s0)
     sep_runs, sep_note = separable_kernels()
     for name, sparams in sep_runs:
-        try:  # another engineer's kernel failing is reported, not fatal
-            SequenceProcessor("separable", base, separable=sparams).process(frames[0])
+        try:  # a kernel failing on this scene is reported, not fatal
+            make_processor("separable", base, MethodOptions(separable=sparams)).process(frames[0])
         except Exception as exc:
             sep_note += f"; separable {name} failed: {type(exc).__name__}: {exc}"
             continue
@@ -1052,12 +1031,12 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
     _progress(
         log,
         start,
-        f"{sep_note}; running {len(jobs)} configurations interleaved over " f"{len(frames)} frames",
+        f"{sep_note}; running {len(jobs)} configurations interleaved over {len(frames)} frames",
     )
     run_jobs(jobs, len(frames))
     points: list[dict] = []
     for job, m in zip(jobs, meta):
-        s = _summary(job.records)
+        s = summarize(job.records)
         points.append(
             {
                 **m,
@@ -1071,14 +1050,13 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
             f"pareto {m['label']:<30} {s['spp']:6.2f} spp "
             f"{s['pass_ms']:8.2f} ms {s['psnr_db']:6.2f} dB",
         )
-    for i in pareto_front(points):
-        points[i]["front"] = True
-    for p in points:
-        p.setdefault("front", False)
+    front = set(pareto_front(points))
+    for i, p in enumerate(points):
+        p["front"] = i in front
 
-    calibration = _calibration_from(points, cfg, scene, size, len(measured), warm)
+    calibration = calibration_from(points, cfg, scene, size, len(measured), warm)
     cal = quality.Calibration.from_dict(calibration)
-    checks = _quality_checks(cfg, cal, frames, ref, warm, base, log, start)
+    checks = quality_checks(cfg, cal, frames, ref, warm, base, log, start)
 
     default = next(
         (
@@ -1120,34 +1098,36 @@ def section_pareto(cfg: BenchConfig, log: Log, start: float, passes: Path | None
     }
 
 
-def _calibration_from(points, cfg, scene, size, frames, warm) -> dict:
+def calibration_from(
+    points: Sequence[dict], cfg: BenchConfig, scene: str, size: Size, frames: int, warm: int
+) -> dict:
+    """The quality calibration (``quality_calibration.json`` body) from Pareto points.
+
+    ``fixed`` is one family over N; each adaptive method has one σ0² family
+    per β_min, largest β_min first.
+    """
     curves: dict[str, list[dict]] = {}
+
+    def family(ps: list[dict], param: str, fixed: dict) -> dict:
+        return {
+            "param": param,
+            "values": [p["value"] for p in ps],
+            "psnr_db": [p["psnr_db"] for p in ps],
+            "spp": [p["spp"] for p in ps],
+            "pass_ms": [p["pass_ms"] for p in ps],
+            "fixed": fixed,
+        }
+
     fx = [p for p in points if p["method"] == "fixed"]
     if fx:
-        curves["fixed"] = [
-            {
-                "param": "fixed_spp",
-                "values": [p["value"] for p in fx],
-                "psnr_db": [p["psnr_db"] for p in fx],
-                "spp": [p["spp"] for p in fx],
-                "pass_ms": [p["pass_ms"] for p in fx],
-                "fixed": {},
-            }
-        ]
+        curves["fixed"] = [family(fx, "fixed_spp", {})]
     for method in ADAPTIVE:
         fams: dict[int, list[dict]] = {}
         for p in points:
             if p["method"] == method and p["param"] == "target_variance":
                 fams.setdefault(p["beta_min"], []).append(p)
         curves[method] = [
-            {
-                "param": "target_variance",
-                "values": [p["value"] for p in ps],
-                "psnr_db": [p["psnr_db"] for p in ps],
-                "spp": [p["spp"] for p in ps],
-                "pass_ms": [p["pass_ms"] for p in ps],
-                "fixed": {"beta_min": bm},
-            }
+            family(ps, "target_variance", {"beta_min": bm})
             for bm, ps in sorted(fams.items(), reverse=True)
         ]
     defaults = {
@@ -1169,18 +1149,32 @@ def _calibration_from(points, cfg, scene, size, frames, warm) -> dict:
     )
 
 
-def _quality_checks(cfg, cal, frames, ref, warm, base, log, start) -> dict:
+def quality_checks(
+    cfg: BenchConfig,
+    cal: quality.Calibration,
+    frames: Sequence[Frame],
+    ref: Callable[[int], np.ndarray],
+    warm: int,
+    base: SSSParams,
+    log: Log = None,
+    start: float | None = None,
+) -> dict:
     """Ask the fresh calibration for targets, then measure on an independent seed."""
-    out = {"method": cfg.check_method, "seed": cfg.check_seed}
+    out: dict[str, Any] = {"method": cfg.check_method, "seed": cfg.check_seed}
     base = base.replace(seed=cfg.check_seed)
-    for key, target in (
-        ("psnr", quality.QualityTarget("psnr", cfg.check_psnr_db)),
-        ("spp", quality.QualityTarget("spp", cfg.check_spp)),
-    ):
+
+    def measure(
+        target: quality.QualityTarget, seq, reference
+    ) -> tuple[quality.QualityChoice, dict]:
         choice = quality.choose(target, cfg.check_method, cal)
-        params = base.replace(**choice.changes)
-        recs, _ = run_sequence(frames, cfg.check_method, params, reference=ref, skip=warm)
-        s = _summary(recs)
+        recs, _ = run_sequence(
+            seq, cfg.check_method, base.replace(**choice.changes), reference=reference, skip=warm
+        )
+        return choice, summarize(recs)
+
+    for key, value in (("psnr", cfg.check_psnr_db), ("spp", cfg.check_spp)):
+        target = quality.QualityTarget(key, value)
+        choice, s = measure(target, frames, ref)
         got = s["psnr_db"] if key == "psnr" else s["spp"]
         out[key] = {
             "target": target.value,
@@ -1201,13 +1195,7 @@ def _quality_checks(cfg, cal, frames, ref, warm, base, log, start) -> dict:
     if cfg.transfer_size is not None:
         tf = _frames(cfg.scene, cfg.transfer_size, len(frames))
         tref, _ = reference_composites(tf, base.replace(seed=cfg.seed))
-        choice = quality.choose(
-            quality.QualityTarget("psnr", cfg.check_psnr_db), cfg.check_method, cal
-        )
-        recs, _ = run_sequence(
-            tf, cfg.check_method, base.replace(**choice.changes), reference=tref, skip=warm
-        )
-        s = _summary(recs)
+        choice, s = measure(quality.QualityTarget("psnr", cfg.check_psnr_db), tf, tref)
         out["transfer"] = {
             "size": size_key(cfg.transfer_size),
             "target": cfg.check_psnr_db,
@@ -1233,7 +1221,74 @@ def _quality_checks(cfg, cal, frames, ref, warm, base, log, start) -> dict:
     return out
 
 
-# -- targets, plots, the whole run ---------------------------------------------------
+# -- the sections together ------------------------------------------------------------
+def run_sections(
+    cfg: BenchConfig,
+    *,
+    passes: Path | None = None,
+    measure_rss: MeasureRss | None = None,
+    log: Log = None,
+    start: float | None = None,
+) -> dict:
+    """Run the sections of ``cfg.sections`` and derive the headline figures.
+
+    Parameters
+    ----------
+    cfg : BenchConfig
+    passes : pass directory for the Pareto sequence instead of the synthetic one
+        (the timing sections stay synthetic: they need sizes and coverages the
+        directory does not have)
+    measure_rss : callable, see :func:`section_rss`; needed for the ``rss`` section
+    log : callable str -> None receiving progress lines, or None
+    start : time.perf_counter() of the run's start (progress time stamps)
+
+    Returns
+    -------
+    dict with ``section_s`` (seconds per section), ``cpu_share`` (this thread's
+    CPU time over wall time while processing, per section), one entry per
+    section (keys of :data:`RESULT_KEYS`), and ``ns_per_sample``,
+    ``gather_ns_per_sample`` and ``overhead_fraction`` when ``cost`` ran.
+    """
+    if "rss" in cfg.sections and measure_rss is None:
+        raise ValueError("the rss section needs measure_rss (one fresh process per configuration)")
+    runners: dict[str, Callable[[], dict]] = {
+        "cost": lambda: section_cost(cfg, log, start),
+        "fit": lambda: section_fit(cfg, log, start),
+        "coverage": lambda: section_coverage(cfg, log, start),
+        "resolution": lambda: section_resolution(cfg, log, start),
+        "rss": lambda: section_rss(cfg, measure_rss, log, start),
+        "pareto": lambda: section_pareto(cfg, log, start, passes),
+    }
+    result: dict[str, Any] = {"section_s": {}, "cpu_share": {}}
+    for name in SECTIONS:
+        if name not in cfg.sections:
+            continue
+        t0 = time.perf_counter()
+        CPU_LEDGER.clear()
+        result[RESULT_KEYS.get(name, name)] = runners[name]()
+        result["section_s"][name] = time.perf_counter() - t0
+        if CPU_LEDGER:
+            wall = sum(w for w, _ in CPU_LEDGER)
+            result["cpu_share"][name] = sum(c for _, c in CPU_LEDGER) / wall if wall else None
+    if "cost" in result:
+        cost = result["cost"]
+        result["ns_per_sample"] = {
+            "method": "as_ccv",
+            **{k: v["as_ccv"]["ns_per_sample"] for k, v in cost["sizes"].items()},
+        }
+        result["gather_ns_per_sample"] = {
+            "method": "as_ccv",
+            **{k: v["as_ccv"]["gather_ns_per_sample"] for k, v in cost["sizes"].items()},
+        }
+        big = list(cost["sizes"])[-1]
+        result["overhead_fraction"] = {
+            "size": big,
+            **{m: v["overhead_fraction"] for m, v in cost["sizes"][big].items()},
+        }
+    return result
+
+
+# -- targets and JSON -------------------------------------------------------------------
 def _target(value: float | None, target: float, op: str, **extra) -> dict:
     ok = value is not None and not (isinstance(value, float) and math.isnan(value))
     met = ok and (value <= target if op == "<=" else value >= target)
@@ -1293,484 +1348,33 @@ def evaluate_targets(result: dict) -> dict:
                 abs(q["error"]), 2.0, "<=", measured_psnr_db=q["measured_psnr_db"]
             )
     if "wall_s" in result:
-        t["bench_wall_s"] = _target(result["wall_s"], 900.0, "<=", cpus=os.cpu_count())
+        cpus = result.get("environment", {}).get("cpus")
+        t["bench_wall_s"] = _target(result["wall_s"], 900.0, "<=", cpus=cpus)
     return t
 
 
-def _clean_json(obj: Any) -> Any:
+def clean_json(obj: Any) -> Any:
+    """``obj`` with NumPy scalars as Python numbers, tuples as lists and non-finite floats as None.
+
+    >>> clean_json({"a": float("nan"), 1: (np.float32(0.5), np.int64(2))})
+    {'a': None, '1': [0.5, 2]}
+    """
     if isinstance(obj, float):
         return None if not math.isfinite(obj) else obj
     if isinstance(obj, dict):
-        return {str(k): _clean_json(v) for k, v in obj.items()}
+        return {str(k): clean_json(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_clean_json(v) for v in obj]
+        return [clean_json(v) for v in obj]
     if isinstance(obj, np.generic):
-        return _clean_json(obj.item())
+        return clean_json(obj.item())
     return obj
 
 
-def write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically (NaN → null)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(
-        json.dumps(_clean_json(data), indent=1, ensure_ascii=False) + "\n", encoding="utf-8"
-    )
-    os.replace(tmp, path)
+def to_json(data: Any) -> str:
+    """The bench's JSON text of ``data`` (:func:`clean_json`, indent 1, UTF-8, final newline)."""
+    return json.dumps(clean_json(data), indent=1, ensure_ascii=False) + "\n"
 
 
-def _environment() -> dict:
-    env = {
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "machine": platform.machine(),
-        "system": platform.system(),
-        "cpus": os.cpu_count(),
-        "processor": platform.processor() or None,
-        "load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
-    }
-    try:
-        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
-            env["cpu_model"] = next(
-                (ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), None
-            )
-    except OSError:
-        pass
-    try:
-        root = Path(__file__).resolve().parent.parent
-        rev = subprocess.run(
-            ["git", "-C", str(root), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=False,
-        )
-        dirty = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=False,
-        )
-        if rev.returncode == 0:
-            env["git"] = rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return env
-
-
-def run_bench(
-    out: Path,
-    config: BenchConfig | None = None,
-    *,
-    passes: Path | None = None,
-    write_calibration: bool = False,
-    plots: bool = True,
-    log: Log = print,
-) -> dict:
-    """Run the bench, write ``out/bench.json``, the calibration and the plots.
-
-    Parameters
-    ----------
-    out : output directory
-    config : BenchConfig, default the full ``make bench`` configuration
-    passes : pass directory to use for the Pareto sequence instead of the
-        synthetic one (timing sections stay synthetic: they need sizes and
-        coverages the directory does not have)
-    write_calibration : also replace the shipped ``core/data/quality_calibration.json``
-    plots : write the PNG figures (needs matplotlib)
-
-    Returns
-    -------
-    dict, the content of bench.json
-    """
-    cfg = config or BenchConfig()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    result: dict[str, Any] = {
-        "version": 1,
-        "command": REGENERATE,
-        "config": cfg.to_dict(),
-        "environment": _environment(),
-        "section_s": {},
-        "cpu_share": {},
-    }
-    sections: list[tuple[str, Callable[[], dict]]] = [
-        ("cost", lambda: section_cost(cfg, log, start)),
-        ("fit", lambda: section_fit(cfg, log, start)),
-        ("coverage", lambda: section_coverage(cfg, log, start)),
-        ("resolution", lambda: section_resolution(cfg, log, start)),
-        ("rss", lambda: section_rss(cfg, log, start)),
-        ("pareto", lambda: section_pareto(cfg, log, start, passes)),
-    ]
-    keys = {
-        "fit": "samples_time_r2",
-        "coverage": "coverage_scaling",
-        "resolution": "resolution_scaling",
-        "rss": "peak_rss_mb",
-    }
-    for name, fn in sections:
-        if name not in cfg.sections:
-            continue
-        t0 = time.perf_counter()
-        CPU_LEDGER.clear()
-        result[keys.get(name, name)] = fn()
-        result["section_s"][name] = time.perf_counter() - t0
-        if CPU_LEDGER:
-            wall = sum(w for w, _ in CPU_LEDGER)
-            result["cpu_share"][name] = sum(c for _, c in CPU_LEDGER) / wall if wall else None
-    if "cost" in result:
-        cost = result["cost"]
-        result["ns_per_sample"] = {
-            "method": "as_ccv",
-            **{k: v["as_ccv"]["ns_per_sample"] for k, v in cost["sizes"].items()},
-        }
-        result["gather_ns_per_sample"] = {
-            "method": "as_ccv",
-            **{k: v["as_ccv"]["gather_ns_per_sample"] for k, v in cost["sizes"].items()},
-        }
-        big = list(cost["sizes"])[-1]
-        result["overhead_fraction"] = {
-            "size": big,
-            **{m: v["overhead_fraction"] for m, v in cost["sizes"][big].items()},
-        }
-    if "pareto" in result:
-        cal = result["pareto"]["calibration"]
-        write_json(out / "quality_calibration.json", cal)
-        if write_calibration:
-            write_json(quality.CALIBRATION_PATH, cal)
-            quality._load_cached.cache_clear()
-    result["wall_s"] = time.perf_counter() - start
-    if hasattr(os, "getloadavg"):
-        # Other processes on the machine slow some frames; interleaving spreads that over
-        # every configuration, but the load is recorded so a noisy run can be recognised.
-        result["environment"]["load_average_1min_end"] = os.getloadavg()[0]
-    result["targets"] = evaluate_targets(result)
-    if plots:
-        try:
-            result["plots"] = [p.name for p in write_plots(result, out)]
-        except ImportError as exc:
-            result["plots"] = []
-            _progress(log, start, f"no plots: {exc}")
-    write_json(out / "bench.json", result)
-    if log:
-        log(format_summary(result))
-        log(f"wrote {out / 'bench.json'} in {result['wall_s']:.0f} s")
-    return result
-
-
-def format_summary(result: dict) -> str:
-    """The targets as a small text table."""
-    lines = ["target                                  value        target     met"]
-    for name, t in result.get("targets", {}).items():
-        v = t["value"]
-        vs = "n/a" if v is None else f"{v:.4g}"
-        lines.append(f"{name:<38} {vs:>10}   {t['target']:>10}   {'yes' if t['met'] else 'NO'}")
-    return "\n".join(lines)
-
-
-# -- plots ----------------------------------------------------------------------------
-_COLOURS = {
-    "fixed": "tab:gray",
-    "as": "tab:green",
-    "as_ocv": "tab:blue",
-    "as_ccv": "tab:red",
-    "separable": "tab:purple",
-}
-
-
-def write_plots(result: dict, out: Path) -> list[Path]:
-    """pareto.png, quality.png and scaling.png from a bench result."""
-    from ..studies.plotting import pyplot, save
-
-    plt = pyplot()
-    written = []
-    par = result.get("pareto")
-    if par:
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
-        pts = par["points"]
-        for ax, xkey, xlabel in (
-            (axes[0], "pass_ms", "mean sampling-pass time per frame (ms)"),
-            (axes[1], "spp", "mean samples per SSS pixel"),
-        ):
-            for method in dict.fromkeys(p["method"] for p in pts):
-                if xkey == "spp" and method == "separable":
-                    continue  # taps, not samples
-                for fam, marker, fill in (("sweep", "o", True), ("calibration", "s", False)):
-                    ps = [p for p in pts if p["method"] == method and p["family"] == fam]
-                    if not ps:
-                        continue
-                    c = _COLOURS.get(method, "k")
-                    ax.scatter(
-                        [p[xkey] for p in ps],
-                        [p["psnr_db"] for p in ps],
-                        marker=marker,
-                        facecolors=c if fill else "none",
-                        edgecolors=c,
-                        s=36,
-                        label=method if fam == "sweep" else f"{method} (other β_min / σ0²)",
-                    )
-                    if fam == "sweep" and method != "separable":
-                        ps = sorted(ps, key=lambda p: p["value"])
-                        ax.plot(
-                            [p[xkey] for p in ps],
-                            [p["psnr_db"] for p in ps],
-                            color=c,
-                            lw=0.8,
-                            alpha=0.6,
-                        )
-            if xkey == "pass_ms":
-                front = sorted((p for p in pts if p["front"]), key=lambda p: p["pass_ms"])
-                ax.step(
-                    [p["pass_ms"] for p in front],
-                    [p["psnr_db"] for p in front],
-                    where="post",
-                    color="k",
-                    lw=2,
-                    alpha=0.5,
-                    label="Pareto front",
-                )
-                for p in front:
-                    if p["family"] != "sweep":
-                        continue  # calibration-only points: markers without labels
-                    ax.annotate(
-                        p["label"].replace("σ0²=", ""),
-                        (p["pass_ms"], p["psnr_db"]),
-                        fontsize=6,
-                        xytext=(3, -8),
-                        textcoords="offset points",
-                    )
-            ax.set_xscale("log")
-            ax.set_xlabel(xlabel)
-            ax.set_ylabel("mean PSNR vs reference (dB)")
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=7, loc="lower right")
-        axes[0].set_title(f"{par['scene']} {par['size']}, {par['frames']} frames")
-        axes[1].set_title("same points against mean spp")
-        written.append(save(fig, out / "pareto.png"))
-
-        cal = par["calibration"]
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-        for method in ADAPTIVE:
-            for fam in cal["methods"].get(method, {}).get("families", []):
-                bm = fam["fixed"].get("beta_min")
-                style = {8: "-", 4: "--", 2: ":"}.get(bm, "-.")
-                kw = {"color": _COLOURS[method], "ls": style, "marker": "o", "ms": 3}
-                axes[0].plot(fam["values"], fam["psnr_db"], label=f"{method} β_min={bm}", **kw)
-                axes[1].plot(fam["values"], fam["spp"], **kw)
-        q = par["quality_checks"]
-        for key, ax in (("psnr", axes[0]), ("spp", axes[1])):
-            c = q.get(key)
-            if c and "target_variance" in c["choice"]:
-                y = c["measured_psnr_db"] if key == "psnr" else c["measured_spp"]
-                ax.scatter(
-                    [c["choice"]["target_variance"]],
-                    [y],
-                    marker="*",
-                    s=160,
-                    color="k",
-                    zorder=5,
-                    label=f"asked {c['target']:g} {'dB' if key == 'psnr' else 'spp'}"
-                    f": measured {y:.1f}",
-                )
-                ax.axhline(c["target"], color="k", lw=0.6, ls="--")
-        for ax, ylab in ((axes[0], "mean PSNR (dB)"), (axes[1], "mean spp")):
-            ax.set_xscale("log")
-            ax.set_xlabel("σ0² (target variance of tracked luminance)")
-            ax.set_ylabel(ylab)
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7)
-        axes[0].set_title(f"quality knob calibration ({cal['resolution']})")
-        written.append(save(fig, out / "quality.png"))
-
-    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
-    fit = result.get("samples_time_r2")
-    if fit:
-        ax = axes[0, 0]
-        labels = dict.fromkeys(p[2] for p in fit["points"])
-        for lab in labels:
-            ps = [p for p in fit["points"] if p[2] == lab]
-            ax.scatter([p[0] / 1e6 for p in ps], [p[1] for p in ps], s=14, label=lab)
-        xs = np.linspace(0, max(p[0] for p in fit["points"]), 10)
-        ax.plot(xs / 1e6, fit["intercept_ms"] + fit["slope_ns_per_sample"] * 1e-6 * xs, "k--", lw=1)
-        ax.set(
-            xlabel="samples per frame (millions)",
-            ylabel="sampling pass (ms)",
-            title=f"time vs samples {fit['size']}: R² = {fit['value']:.4f}",
-        )
-        ax.legend(fontsize=6)
-    cost = result.get("cost")
-    if cost:
-        ax = axes[0, 1]
-        sizes = list(cost["sizes"])
-        width = 0.8 / (len(sizes) * 2)
-        for j, size in enumerate(sizes):
-            rows = cost["sizes"][size]
-            xs = np.arange(len(rows))
-            ax.bar(
-                xs + (2 * j) * width,
-                [r["ns_per_sample"] for r in rows.values()],
-                width,
-                label=f"sampling step {size}",
-            )
-            ax.bar(
-                xs + (2 * j + 1) * width,
-                [r["gather_ns_per_sample"] for r in rows.values()],
-                width,
-                label=f"np.take gather {size}",
-                hatch="//",
-            )
-            ax.set_xticks(xs + width * (len(sizes) - 0.5), list(rows))
-        ax.set(ylabel="ns per sample", title="cost per sample vs the gather roofline")
-        ax.set_yscale("log")
-        ax.legend(fontsize=6)
-        bd = {
-            k: v
-            for k, v in cost.get("breakdown", {}).items()
-            if isinstance(v, float) and k != "samples"
-        }
-        if bd:
-            ax = axes[0, 2]
-            ax.barh(list(bd), list(bd.values()), color="tab:gray")
-            ax.set(xlabel="ns per sample", title=f"building blocks ({cost['breakdown']['size']})")
-    cov = result.get("coverage_scaling")
-    if cov:
-        ax = axes[1, 0]
-        rows = cov["rows"]
-        ax.plot(
-            [r["sss_pixels"] / 1e3 for r in rows],
-            [r["total_ms"] for r in rows],
-            "o-",
-            label="frame total",
-        )
-        ax.plot(
-            [r["sss_pixels"] / 1e3 for r in rows],
-            [r["pass_ms"] for r in rows],
-            "s-",
-            label="sampling pass",
-        )
-        if "eps_u" in cov:
-            e = cov["eps_u"]
-            ax.plot(
-                [e["default"]["distant_pixels"] / 1e3, e["raised"]["distant_pixels"] / 1e3],
-                [e["default"]["pass_ms"], e["raised"]["pass_ms"]],
-                "k*--",
-                ms=10,
-                label=f"scene, ε_u {e['default_eps_u']:g} → {e['eps_u']:.2f} "
-                "(x = pixels above ε_u)",
-            )
-        ax.set(
-            xlabel="SSS pixels (thousands)",
-            ylabel="ms per frame",
-            title=f"coverage 10/50/100 % ({cov['size']}, {cov['method']})",
-        )
-        ax.legend(fontsize=7)
-    res = result.get("resolution_scaling")
-    if res:
-        ax = axes[1, 1]
-        rows = res["rows"]
-        ax.plot(
-            [r["pixels"] / 1e6 for r in rows],
-            [r["ns_per_pixel"] for r in rows],
-            "o-",
-            label="frame total / pixel",
-        )
-        ax.plot(
-            [r["pixels"] / 1e6 for r in rows],
-            [r["pass_ns_per_pixel"] for r in rows],
-            "s-",
-            label="sampling pass / pixel",
-        )
-        ax.set_xscale("log")
-        ax.set(
-            xlabel="megapixels",
-            ylabel="ns per pixel",
-            ylim=(0, None),
-            title=f"resolution scaling ({res['method']})",
-        )
-        ax.legend(fontsize=7)
-    rss = result.get("peak_rss_mb")
-    if rss:
-        ax = axes[1, 2]
-        rows = [r for r in rss["rows"] if r.get("peak_rss_mb") is not None]
-        labels = [f"{r['method']} {r['precision'][5:]}\n{r['size']}" for r in rows]
-        ax.barh(range(len(rows)), [r["peak_rss_mb"] for r in rows], color="tab:blue")
-        ax.set_yticks(range(len(rows)), labels, fontsize=6)
-        ax.axvline(4096, color="r", ls="--", lw=1, label="4 GB")
-        ax.set(xlabel="peak RSS (MB)", title="peak memory per configuration (1 frame)")
-        ax.legend(fontsize=7)
-    written.append(save(fig, out / "scaling.png"))
-    return written
-
-
-# -- command line -----------------------------------------------------------------
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Arguments of ``cvsss bench`` (also ``python -m cvsss.core.eval.bench``)."""
-    parser = parser or argparse.ArgumentParser(
-        prog="cvsss bench", description="Speed and the speed/accuracy trade, measured."
-    )
-    parser.add_argument("--out", type=Path, default=Path("out/bench"), help="output directory")
-    parser.add_argument(
-        "--passes",
-        type=Path,
-        default=None,
-        help="pass directory for the Pareto sequence (default: synthetic flash)",
-    )
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help="tiny sizes and few frames (seconds; a smoke run, not a measurement)",
-    )
-    parser.add_argument(
-        "--sections",
-        default=None,
-        help="comma-separated subset of cost,fit,coverage,resolution,rss,pareto",
-    )
-    parser.add_argument(
-        "--write-calibration",
-        action="store_true",
-        help="also replace the shipped core/data/quality_calibration.json",
-    )
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--rss-worker", default=None, help=argparse.SUPPRESS)
-    return parser
-
-
-def config_from_args(args: argparse.Namespace) -> BenchConfig:
-    cfg = QUICK if args.quick else BenchConfig()
-    if args.sections:
-        names = tuple(s.strip() for s in args.sections.split(",") if s.strip())
-        bad = [s for s in names if s not in BenchConfig().sections]
-        if bad or not names:
-            raise ValueError(
-                f"--sections must be a subset of {','.join(BenchConfig().sections)}, "
-                f"got {args.sections!r}"
-            )
-        cfg = dataclasses.replace(cfg, sections=names)
-    return cfg
-
-
-def main(argv: Iterable[str] | None = None) -> int:
-    args = build_parser().parse_args(list(argv) if argv is not None else None)
-    if args.rss_worker:
-        print(json.dumps(rss_worker(json.loads(args.rss_worker))))
-        return 0
-    try:
-        cfg = config_from_args(args)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    run_bench(
-        args.out,
-        cfg,
-        passes=args.passes,
-        write_calibration=args.write_calibration,
-        plots=not args.no_plots,
-    )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+def write_json(path: str | Path, data: Any) -> None:
+    """Write :func:`to_json` of ``data`` to ``path`` atomically (folders created)."""
+    write_text(path, to_json(data))

@@ -12,7 +12,7 @@ storage rounds. Stored values are clipped to the finite range of the storage
 type so HDR input never turns into inf.
 
 float16 storage is scaled so that what the algorithm compares lands in the
-half-precision range (measured by ``python -m cvsss.core.studies.fp16``):
+half-precision range (measured by ``cvsss fp16``):
 
 - the covariance entries are stored divided by η_cv. With the paper's
   η_cv = 1e-6, Σ ≈ η_cv·(ΔZ)² sits below float16's smallest subnormal

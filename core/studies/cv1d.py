@@ -57,15 +57,16 @@ All randomness comes from ``numpy.random.SeedSequence(seed)``: one child
 stream draws the study's y (shared by both scenarios and all configurations:
 common random numbers), another the optimal-coefficient estimate, which
 therefore does not depend on ``seeds``.
+
+``cvsss cv1d --out out`` (front-end and figure: ``sss_addon.cli.studies``)
+writes ``cv1d.json``, ``cv1d_curves.json`` and ``cv1d.png`` and prints
+:func:`format_table`.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -327,72 +328,3 @@ def format_table(result: dict[str, Any]) -> str:
         f"in-frame constant control {gt['constant_control']:.4f} (ln 4 = {math.log(4):.4f}).",
     ]
     return "\n".join(lines)
-
-
-def plot(result: dict[str, Any], path: str | Path) -> Path:
-    """α and ReMSE per frame and configuration, static and dynamic side by side."""
-    from .plotting import COLOURS, pyplot, save
-
-    plt = pyplot()
-    curves = result["curves"]
-    frame = np.asarray(curves["frame"])
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for col, scenario in enumerate(SCENARIOS):
-        for name, label in CONFIGS.items():
-            style = {"color": COLOURS[name], "label": label, "lw": 1.2}
-            if name == "gt":
-                style["ls"] = "--"
-            if name != "no_cv":
-                axes[0, col].plot(frame, curves[scenario]["alpha"][name], **style)
-            axes[1, col].plot(frame, curves[scenario]["remse"][name], **style)
-        axes[0, col].set_title(
-            f"{scenario} lighting: h(t) = " + ("1" if scenario == "static" else "1 + 3 sin(t/10)")
-        )
-        axes[0, col].set_ylabel("CV coefficient α (mean over seeds)")
-        axes[1, col].set_ylabel("ReMSE = sqrt(moving Var(Res)), η = 0.2")
-        axes[1, col].set_xlabel("frame t")
-        axes[1, col].set_yscale("log")
-        axes[1, col].axvspan(*result["settings"]["report_frames"], color="0.93", zorder=0)
-    axes[0, 1].axhline(math.log(4), color="0.5", lw=0.8, ls=":", label="ln 4")
-    axes[0, 0].legend(fontsize=7, loc="best")
-    axes[1, 0].legend(fontsize=7, loc="best")
-    return save(fig, path)
-
-
-def write(out_dir: str | Path, seeds: int = 1000, seed: int = 0) -> dict[str, Any]:
-    """Run the study and write ``cv1d.json``, ``cv1d_curves.json`` and ``cv1d.png``.
-
-    Returns the :func:`run` result (with curves).
-    """
-    result = run(seeds=seeds, seed=seed)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    summary = {k: v for k, v in result.items() if k != "curves"}
-    (out / "cv1d.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "cv1d_curves.json").write_text(json.dumps(result["curves"]) + "\n")
-    plot(result, out / "cv1d.png")
-    return result
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m cvsss.core.studies.cv1d --out DIR --seeds N``."""
-    parser = argparse.ArgumentParser(
-        prog="cvsss cv1d", description="Coefficient study of the CV residual (P Fig. 5)."
-    )
-    parser.add_argument("--out", default="out", help="output directory (default: out)")
-    parser.add_argument(
-        "--seeds", type=int, default=1000, help="sequences to average (default 1000)"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    args = parser.parse_args(argv)
-    try:
-        result = write(args.out, seeds=args.seeds, seed=args.seed)
-    except ValueError as exc:
-        parser.error(str(exc))
-    print(format_table(result))
-    print(f"\nwrote {Path(args.out) / 'cv1d.json'}, cv1d_curves.json, cv1d.png")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -33,14 +33,14 @@ Per pixel, SPVG (:func:`cvsss.core.mc.adaptive.sample_counts` /
 ``as_ccv``  S = f̄ − G(t) (α ≡ 1, P Sec. 6.3);
 
 with the in-frame constant control G(t) = γ·B(p, t) (P Eq. 30).
+
+``cvsss fig2 --out out`` (front-end and figure: ``sss_addon.cli.studies``)
+writes ``fig2.json``, ``fig2_curves.json`` and ``fig2.png`` and prints
+:func:`format_table`.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -339,101 +339,3 @@ def format_table(result: dict[str, Any]) -> str:
         f"Burley d = {s['d_pixels']:g} px, I(t) = sin(2π·5t) + 1 at {s['fps']:g} fps.",
     ]
     return "\n".join(lines)
-
-
-def plot(result: dict[str, Any], path: str | Path) -> Path:
-    """Lighting, intensity and sample counts per pixel and per frame."""
-    from .plotting import COLOURS, pyplot, save
-
-    plt = pyplot()
-    c = result["curves"]
-    x = np.asarray(c["x"])
-    vis = np.asarray(c["visibility"])
-    dyn = np.asarray(c["intensity"]["dynamic"])
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
-
-    ax = axes[0, 0]
-    ax.plot(x, vis, color="black", label="static, I = 1")
-    for frame in (1, 3, 9):
-        if frame < dyn.size:
-            ax.plot(
-                x,
-                dyn[frame] * vis,
-                lw=0.9,
-                ls="--",
-                label=f"dynamic, frame {frame} (I = {dyn[frame]:.1f})",
-            )
-    ax.set_xlabel("surface position x")
-    ax.set_ylabel("lighting B(x, t)")
-    ax.set_title("(a) lighting on the 1D surface")
-    ax.legend(fontsize=7)
-
-    ax = axes[0, 1]
-    frames = np.arange(dyn.size)
-    ax.plot(frames, c["intensity"]["static"], color="black", label="static")
-    ax.plot(frames, dyn, color="tab:purple", label="dynamic: sin(2π·5t) + 1")
-    ax.set_xlabel("frame (60 fps)")
-    ax.set_ylabel("light intensity I(t)")
-    ax.set_title("(b) intensity over time")
-    ax.legend(fontsize=7)
-
-    for config, label in CONFIGS.items():
-        for scenario, ls in (("static", ":"), ("dynamic", "-")):
-            key = f"{config}_{scenario}"
-            style = {
-                "color": COLOURS[config],
-                "ls": ls,
-                "lw": 1.2,
-                "label": f"{label.split(':')[0]} {scenario} ({result[key]:.1f} spp)",
-            }
-            axes[1, 0].plot(x, c["counts_per_pixel"][key], **style)
-            axes[1, 1].plot(frames, c["counts_per_frame"][key], **style)
-    axes[1, 0].set_xlabel("surface position x")
-    axes[1, 0].set_ylabel("sample count m (mean over frames)")
-    axes[1, 0].set_title("(c) sample count per pixel")
-    axes[1, 1].set_xlabel("frame (60 fps)")
-    axes[1, 1].set_ylabel("sample count m (mean over pixels)")
-    axes[1, 1].set_title("(d) sample count per frame")
-    for ax in axes[1]:
-        ax.set_ylim(0, result["settings"]["params"]["beta_max"] * 1.05)
-    axes[1, 1].legend(fontsize=7, loc="lower right")
-    return save(fig, path)
-
-
-def write(out_dir: str | Path, seeds: int = 8, seed: int = 0) -> dict[str, Any]:
-    """Run the example and write ``fig2.json``, ``fig2_curves.json`` and ``fig2.png``.
-
-    Returns the :func:`run` result (with curves).
-    """
-    result = run(seeds=seeds, seed=seed)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    summary = {k: v for k, v in result.items() if k != "curves"}
-    (out / "fig2.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "fig2_curves.json").write_text(json.dumps(result["curves"]) + "\n")
-    plot(result, out / "fig2.png")
-    return result
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m cvsss.core.studies.fig2 --out DIR --seeds N``."""
-    parser = argparse.ArgumentParser(
-        prog="cvsss fig2", description="Motivating example of P Fig. 2 (1D surface)."
-    )
-    parser.add_argument("--out", default="out", help="output directory (default: out)")
-    parser.add_argument(
-        "--seeds", type=int, default=8, help="sample streams to average (default 8)"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the pixel hash (default 0)")
-    args = parser.parse_args(argv)
-    try:
-        result = write(args.out, seeds=args.seeds, seed=args.seed)
-    except ValueError as exc:
-        parser.error(str(exc))
-    print(format_table(result))
-    print(f"\nwrote {Path(args.out) / 'fig2.json'}, fig2_curves.json, fig2.png")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

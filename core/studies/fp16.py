@@ -3,8 +3,8 @@
 The paper keeps the per-pixel history in RGBA16F render targets. This study
 runs the synthetic ``flash`` sequence (the paper's flash scene,
 ``I(t) = sin(2π·5t) + 1`` at 60 fps, :mod:`cvsss.core.synthetic`) through
-:class:`~cvsss.core.mc.processor.SequenceProcessor` three times per adaptive
-method, in lockstep, with the same samples (fixed seed):
+the Monte Carlo processor (:func:`cvsss.core.methods.make_processor`) three
+times per adaptive method, in lockstep, with the same samples (fixed seed):
 
 ``float32``
     the reference history;
@@ -26,27 +26,23 @@ A long run (default 6000 frames, the flash period repeated at 48x27) shows
 how α drifts once the float16 Σ/η_cv is large enough that part of each
 frame's increment is rounded away.
 
-Command (writes ``OUT/fp16.json``)::
+Command (front-end: ``sss_addon.cli.studies``; writes ``OUT/fp16.json``)::
 
-    python -m cvsss.core.studies.fp16 --out out    # 300 frames, 96x54, + 6000-frame run
+    cvsss fp16 --out out    # 300 frames, 96x54, + 6000-frame run
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
-import json
-import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..frame import Frame
 from ..mc.history import History
-from ..mc.processor import SequenceProcessor
+from ..methods import make_processor
 from ..params import SSSParams
 from ..synthetic import scene_frame
 
@@ -59,7 +55,7 @@ FLOAT16_TINY = float(np.finfo(np.float16).smallest_subnormal)
 
 def _processor(method: str, params: SSSParams, variant: str, shape: tuple[int, int]):
     precision = "float32" if variant == "float32" else "float16"
-    proc = SequenceProcessor(method, params.replace(history_precision=precision))
+    proc = make_processor(method, params.replace(history_precision=precision))
     if variant == "float16_unscaled":
         proc.history = History.empty(
             shape, "float16", params.eta_cv, params.target_variance, scaled=False
@@ -247,9 +243,22 @@ def measure(
     scaling_frames: int = 60,
     long_frames: int = 0,
 ) -> dict[str, Any]:
-    """The whole study (see module docstring); returns the JSON-ready result."""
+    """The whole study (see module docstring); returns the JSON-ready result.
+
+    Parameters
+    ----------
+    frames : int >= 2, frames of the flash sequence
+    width, height : int >= 1, pixels
+    methods : non-empty subset of :data:`METHODS`
+    params : SSSParams, default the paper's (history_precision is overridden)
+    scaling_frames : int, frames of the σ0² measurement (:func:`variance_scaling`)
+    long_frames : int, frames of :func:`long_run` (0: skipped)
+    """
     if frames < 2:
         raise ValueError(f"frames must be >= 2, got {frames}")
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise ValueError(f"methods must be a subset of {', '.join(METHODS)}, got {methods!r}")
     params = params or SSSParams()
     seq = [scene_frame("flash", n, width, height) for n in range(1, frames + 1)]
     t0 = time.perf_counter()
@@ -322,73 +331,3 @@ def format_table(result: dict[str, Any]) -> str:
                 f"{r['dalpha_mean']:9.2e} {r['dalpha_max']:9.2e} {r['syy_ratio_median']:6.3f}"
             )
     return "\n".join(lines)
-
-
-def write(out_dir: str | Path, command: str | None = None, **kwargs: Any) -> dict[str, Any]:
-    """Run :func:`measure` and write ``out_dir/fp16.json`` (summary and per-frame rows)."""
-    result = measure(**kwargs)
-    if command:
-        result = {"command": command, **result}
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "fp16.json").write_text(json.dumps(result, indent=1) + "\n")
-    return result
-
-
-def _resolution(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
-    if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive WIDTHxHEIGHT, got {text!r}")
-    return w, h
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m cvsss.core.studies.fp16 --out DIR [--frames N] [--res WxH]``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m cvsss.core.studies.fp16",
-        description="Drift of counts and α with a float16 history (flash sequence).",
-    )
-    parser.add_argument("--out", default="out", help="output directory (default: out)")
-    parser.add_argument("--frames", type=int, default=300, help="frames (default 300)")
-    parser.add_argument("--res", type=_resolution, default=(96, 54), help="WxH (default 96x54)")
-    parser.add_argument(
-        "--methods",
-        default=",".join(METHODS),
-        help=f"comma-separated subset of {', '.join(METHODS)}",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="sampling seed (default 0)")
-    parser.add_argument(
-        "--long-frames",
-        type=int,
-        default=6000,
-        help="frames of the long α-drift run, 0 to skip (default 6000)",
-    )
-    args = parser.parse_args(argv)
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    bad = [m for m in methods if m not in METHODS]
-    if not methods or bad:
-        parser.error(f"--methods must be a subset of {', '.join(METHODS)}, got {args.methods!r}")
-    try:
-        command = " ".join(["python -m cvsss.core.studies.fp16", *(argv or sys.argv[1:])])
-        result = write(
-            args.out,
-            command=command,
-            frames=args.frames,
-            width=args.res[0],
-            height=args.res[1],
-            methods=methods,
-            params=SSSParams(seed=args.seed),
-            long_frames=max(args.long_frames, 0),
-        )
-    except ValueError as exc:
-        parser.error(str(exc))
-    print(format_table(result))
-    print(f"\nwrote {Path(args.out) / 'fp16.json'} ({result['seconds']} s)")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -12,38 +12,28 @@ For every kernel of :data:`cvsss.core.separable.kernels.KERNELS`:
   profile (display-referred luminance over SSS pixels, core.metrics.psnr),
   i.e. what the separable approximation costs in image quality.
 
-Run::
+Run (front-end: ``sss_addon.cli.studies``)::
 
-    python -m cvsss.core.studies.separable_kernels --res 640x360 --frames 3 \\
-        --out out/separable_kernels
+    cvsss separable-kernels --res 640x360 --frames 3 --out out/separable_kernels
 
-It prints the tables (markdown) and writes ``separable_kernels.json`` and
-``separable_kernels.md`` into ``--out``. Timings depend on the machine.
+It prints the tables (markdown, :func:`format_tables`) and writes
+``separable_kernels.json`` and ``separable_kernels.md`` into ``--out``.
+Timings depend on the machine.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
-import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
 from ..eval.metrics import psnr
-from ..mc.processor import SequenceProcessor, default_profile
-from ..params import SSSParams
+from ..methods import MethodOptions, make_processor
+from ..params import KERNELS, TAP_COUNTS, SeparableParams, SSSParams
 from ..profiles import presets
 from ..profiles.dipole import DipoleProfile
-from ..separable.kernels import (
-    KERNELS,
-    TAP_COUNTS,
-    SeparableParams,
-    kernel_errors,
-    svd_optimum_errors,
-)
+from ..profiles.factory import frame_profile
+from ..separable.kernels import kernel_errors, svd_optimum_errors
 from ..synthetic import scene_frame
 
 
@@ -59,11 +49,25 @@ def run(
     gaussians: int = 4,
     reference_spp: int = 256,
     presets_table: bool = True,
+    machine: str = "",
 ) -> dict:
-    """Compute the error, cost and PSNR tables (see module doc)."""
+    """Compute the error, cost and PSNR tables (see module doc).
+
+    Parameters
+    ----------
+    width, height : int, pixels of the flash frames
+    frames : int >= 1, frames timed
+    taps : tap counts (each of :data:`cvsss.core.params.TAP_COUNTS`)
+    gaussians : int, N of the ``gaussians`` kernel
+    reference_spp : int, samples per pixel of the Monte Carlo reference
+    presets_table : bool, also the error table of the measured presets
+    machine : str, the machine the timings were taken on (recorded as is)
+    """
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ValueError(f"frames must be an integer >= 1, got {frames!r}")
     frame_list = [scene_frame("flash", n, width, height) for n in range(1, frames + 1)]
     params = SSSParams(reference_spp=reference_spp)
-    profile = default_profile(frame_list[0], params)
+    profile = frame_profile(frame_list[0], params)
     names = {s.slot: s.name for s in frame_list[0].materials.values()}
     errors = {
         names[s]: {k: v.tolist() for k, v in kernel_errors(profile, s, gaussians=gaussians).items()}
@@ -73,16 +77,13 @@ def run(
         names[s]: {f"svd{k}": v.tolist() for k, v in svd_optimum_errors(profile, s).items()}
         for s in names
     }
-    ref_proc = SequenceProcessor("reference", params)
+    ref_proc = make_processor("reference", params)
     refs = [ref_proc.process(f) for f in frame_list]
     cost = []
     for kernel in KERNELS:
         for n in taps:
-            proc = SequenceProcessor(
-                "separable",
-                params,
-                separable=SeparableParams(kernel=kernel, taps=n, gaussians=gaussians),
-            )
+            sparams = SeparableParams(kernel=kernel, taps=n, gaussians=gaussians)
+            proc = make_processor("separable", params, MethodOptions(separable=sparams))
             ms, db = [], []
             for f, ref in zip(frame_list, refs):
                 res = proc.process(f)
@@ -101,7 +102,7 @@ def run(
             )
     mc = []
     for method in ("fixed",):  # adaptive methods need a warm history, not a few frames
-        proc = SequenceProcessor(method, params)
+        proc = make_processor(method, params)
         rows = [proc.process(f) for f in frame_list]
         mc.append(
             {
@@ -135,7 +136,7 @@ def run(
         "scene": "flash",
         "reference_spp": reference_spp,
         "gaussians": gaussians,
-        "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+        "machine": machine,
         "errors": errors,
         "svd_optimum_errors": svd_optimum,
         "cost": cost,
@@ -204,50 +205,3 @@ def format_tables(result: dict) -> str:
         for name, errs in result["preset_errors"].items():
             lines.append(f"| {name} | " + " | ".join(f"{errs[k]:.3f}" for k in kernels) + " |")
     return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line (see module doc)."""
-    parser = argparse.ArgumentParser(
-        prog="python -m cvsss.core.studies.separable_kernels", description=__doc__.splitlines()[0]
-    )
-    parser.add_argument("--res", default="640x360", help="resolution WxH (default 640x360)")
-    parser.add_argument("--frames", type=int, default=3, help="frames timed (default 3)")
-    parser.add_argument("--gaussians", type=int, default=4, help="N of the gaussians kernel")
-    parser.add_argument(
-        "--reference-spp",
-        type=int,
-        default=256,
-        help="samples per pixel of the Monte Carlo reference (default 256)",
-    )
-    parser.add_argument("--no-presets", action="store_true", help="skip the preset error table")
-    parser.add_argument("--out", default="out/separable_kernels", help="output directory")
-    args = parser.parse_args(argv)
-    try:
-        width, height = (int(v) for v in args.res.lower().split("x"))
-    except ValueError:
-        parser.error(f"--res must be WIDTHxHEIGHT, got {args.res!r}")
-    t0 = time.perf_counter()
-    result = run(
-        width,
-        height,
-        args.frames,
-        gaussians=args.gaussians,
-        reference_spp=args.reference_spp,
-        presets_table=not args.no_presets,
-    )
-    text = format_tables(result)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "separable_kernels.json").write_text(json.dumps(result, indent=2) + "\n")
-    (out / "separable_kernels.md").write_text(text + "\n")
-    print(text)
-    print(
-        f"\nwrote {out / 'separable_kernels.json'} and separable_kernels.md "
-        f"({time.perf_counter() - t0:.0f} s)"
-    )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -229,13 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
     add_arguments(rnd)
 
-    try:  # TEMP-HELPER
-        from . import bench, studies
+    from . import bench, studies
 
-        bench.add_parser(sub)
-        studies.add_parsers(sub)
-    except ImportError:  # TEMP-HELPER
-        pass
+    bench.add_parser(sub)
+    studies.add_parsers(sub)
     return parser
 
 

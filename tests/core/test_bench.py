@@ -1,4 +1,10 @@
-"""``cvsss bench``: a smoke run at 32×18 (keys and sane values, never timings) and its helpers."""
+"""The bench's measuring functions (core.eval.bench): known values and a smoke run at 32×18.
+
+Timings are never asserted against thresholds; what is asserted is how each
+figure is derived from what was measured (ratios, fits, fronts, sample
+counts), which a bug in the bookkeeping breaks. The command line, files, plots
+and the memory subprocesses are tested in tests/sss_addon/test_bench_cli.py.
+"""
 
 from __future__ import annotations
 
@@ -10,154 +16,404 @@ import numpy as np
 import pytest
 
 from cvsss.core.eval import bench, quality
-from cvsss.core.mc.processor import SequenceProcessor
-from cvsss.core.params import SSSParams
+from cvsss.core.eval.metrics import PSNR_CAP_DB
+from cvsss.core.methods import make_processor
+from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.synthetic import scene_frame
 
-TARGETS = (
-    "ns_per_sample_vs_gather",
-    "overhead_fraction_as_ocv",
-    "samples_time_r2",
-    "peak_rss_mb_largest",
-    "as_ccv_time_vs_fixed_at_equal_psnr",
-    "quality_45db_error_db",
-    "bench_wall_s",
-)
+
+def _fake_rss(calls: list):
+    """A measure_rss recording its specs and answering 100, 101, … MB in order."""
+
+    def measure(specs: list[dict]) -> list[dict]:
+        calls.append(specs)
+        return [{"peak_rss_mb": 100.0 + i, "source": "fake"} for i in range(len(specs))]
+
+    return measure
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench")
-    result = bench.run_bench(out, bench.QUICK, plots=True, log=None)
-    return out, result
+def smoke():
+    calls: list = []
+    result = bench.run_sections(bench.QUICK, measure_rss=_fake_rss(calls))
+    return result, calls
 
 
-def _finite_positive(x) -> bool:
-    return isinstance(x, float | int) and math.isfinite(x) and x > 0
+def _dominated(p: dict, q: dict) -> bool:
+    """q is at least as fast and as good as p, and strictly better in one."""
+    return (
+        q["pass_ms"] <= p["pass_ms"]
+        and q["psnr_db"] >= p["psnr_db"]
+        and (q["pass_ms"] < p["pass_ms"] or q["psnr_db"] > p["psnr_db"])
+    )
 
 
-def test_smoke_writes_bench_json_with_every_figure(smoke):
-    out, result = smoke
-    data = json.loads((out / "bench.json").read_text(encoding="utf-8"))
-    for key in (
-        "ns_per_sample",
-        "gather_ns_per_sample",
-        "samples_time_r2",
-        "overhead_fraction",
-        "coverage_scaling",
-        "resolution_scaling",
-        "peak_rss_mb",
-        "pareto",
-        "targets",
-        "environment",
-        "config",
-        "wall_s",
-        "section_s",
-    ):
-        assert key in data, key
-    assert set(TARGETS) <= set(data["targets"])
-    for t in data["targets"].values():
-        assert set(t) >= {"value", "target", "met"} and isinstance(t["met"], bool)
-    assert data == json.loads(json.dumps(bench._clean_json(result)))
+# -- fits, fronts, interpolation: constructed data ----------------------------------------
+def test_linear_fit_recovers_slope_intercept_and_r2_of_constructed_data():
+    # Residuals orthogonal to [1, x]: the least-squares line is exactly 3 + 2x,
+    # SS_res = 10 and SS_tot = 4·Σ(x − 2)² + Σe² = 50, so R² = 0.8.
+    x = np.arange(5.0)
+    e = np.array([1.0, -2.0, 0.0, 2.0, -1.0])
+    fit = bench.linear_fit(x, 3.0 + 2.0 * x + e)
+    assert fit["slope"] == pytest.approx(2.0, abs=1e-12)
+    assert fit["intercept"] == pytest.approx(3.0, abs=1e-12)
+    assert fit["r2"] == pytest.approx(0.8, abs=1e-12)
 
 
-def test_smoke_values_are_sane(smoke):
-    _, r = smoke
-    assert _finite_positive(r["ns_per_sample"]["32x18"])
-    assert _finite_positive(r["gather_ns_per_sample"]["32x18"])
-    assert r["samples_time_r2"]["value"] <= 1.0
-    for method in ("fixed", "as", "as_ocv", "as_ccv"):
-        assert 0.0 <= r["overhead_fraction"][method] < 1.0
-    assert r["overhead_fraction"]["fixed"] < r["overhead_fraction"]["as_ocv"] + 1e-9
-    cov = r["coverage_scaling"]["rows"]
-    assert [row["coverage"] for row in cov] == [0.5, 1.0]
-    assert cov[0]["sss_pixels"] < cov[1]["sss_pixels"]
-    eps = r["coverage_scaling"]["eps_u"]
-    assert eps["raised"]["distant_pixels"] < eps["default"]["distant_pixels"]
-    res = r["resolution_scaling"]["rows"]
-    assert [row["pixels"] for row in res] == [32 * 18, 64 * 36]
-    assert all(_finite_positive(row["ns_per_pixel"]) for row in res)
-    rss = r["peak_rss_mb"]
-    assert set(rss["32x18"]["as_ocv"]) == {"float32", "float16"}
-    assert all(10 < v < 4096 for v in rss["32x18"]["as_ocv"].values())
+def test_linear_fit_matches_an_independent_fit_on_random_data(rng):
+    x = rng.random(50) * 1e6
+    y = 0.3 + 2e-5 * x + rng.normal(0.0, 2.0, 50)
+    fit = bench.linear_fit(x, y)
+    design = np.stack([np.ones_like(x), x], axis=1)
+    (a, b), *_ = np.linalg.lstsq(design, y, rcond=None)
+    assert fit["slope"] == pytest.approx(b, rel=1e-9)
+    assert fit["intercept"] == pytest.approx(a, rel=1e-9)
+    assert fit["r2"] == pytest.approx(np.corrcoef(x, y)[0, 1] ** 2, rel=1e-9)
 
 
-def test_smoke_pareto_points_and_front(smoke):
-    _, r = smoke
-    par = r["pareto"]
-    assert par["reference"]["mode"] == "affine"
-    labels = {p["label"] for p in par["points"]}
-    assert {
-        "fixed N=1",
-        "fixed N=16",
-        "as σ0²=0.01",
-        "as_ocv σ0²=0.0001",
-        "as_ccv σ0²=0.01 β_min=4",
-    } <= labels
-    for p in par["points"]:
-        assert p["frames"] == bench.QUICK.pareto_frames
-        assert 20 < p["psnr_db"] <= 100 and p["pass_ms"] > 0
-    fixed = sorted((p for p in par["points"] if p["method"] == "fixed"), key=lambda p: p["value"])
-    assert [p["spp"] > 0 for p in fixed] and fixed[0]["psnr_db"] < fixed[-1]["psnr_db"]
-    assert par["front"] and all(p["front"] == (p["label"] in par["front"]) for p in par["points"])
-    if "separable" in r["pareto"]["separable"] and "skipped" not in par["separable"]:
-        assert any(p["method"] == "separable" for p in par["points"])
+def test_linear_fit_of_constant_data_is_nan():
+    assert all(math.isnan(v) for v in bench.linear_fit([2.0, 2.0, 2.0], [1.0, 2.0, 3.0]).values())
+    assert math.isnan(bench.linear_fit([1.0, 2.0, 3.0], [5.0, 5.0, 5.0])["r2"])
+    assert math.isnan(bench.linear_fit([1.0], [1.0])["slope"])
 
 
-def test_smoke_calibration_loads_and_plots_exist(smoke):
-    out, r = smoke
-    cal = quality.load_calibration(out / "quality_calibration.json")
-    assert {"fixed", "as", "as_ocv", "as_ccv"} <= set(cal.methods)
-    assert {f.fixed["beta_min"] for f in cal.methods["as_ccv"]} == {8, 4}
-    checks = r["pareto"]["quality_checks"]
-    assert checks["psnr"]["target"] == 45.0 and math.isfinite(checks["psnr"]["measured_psnr_db"])
-    for name in ("pareto.png", "quality.png", "scaling.png"):
-        assert (out / name).stat().st_size > 1000
+def test_pareto_front_is_exactly_the_non_dominated_points():
+    pts = [
+        {"pass_ms": 1.0, "psnr_db": 30.0},  # 0 front
+        {"pass_ms": 2.0, "psnr_db": 20.0},  # 1 dominated by 0
+        {"pass_ms": 2.0, "psnr_db": 35.0},  # 2 front
+        {"pass_ms": 3.0, "psnr_db": 35.0},  # 3 as good as 2 but slower
+        {"pass_ms": 3.0, "psnr_db": 40.0},  # 4 front
+        {"pass_ms": 5.0, "psnr_db": 39.0},  # 5 dominated by 4
+        {"pass_ms": 1.0, "psnr_db": 25.0},  # 6 as fast as 0 but worse
+    ]
+    assert bench.pareto_front(pts) == [0, 2, 4]
 
 
-def test_affine_reference_equals_the_reference_with_the_same_samples():
-    frames = [scene_frame("flash", n, 24, 14) for n in range(1, 10)]
-    params = SSSParams(reference_spp=32)
-    ref, info = bench.reference_composites(frames, params)
-    assert info["mode"] == "affine"
-    proc = SequenceProcessor("reference", params)
-    for i in (0, 4, 8):
-        direct = proc.process(dataclasses.replace(frames[i], number=0)).composite
-        np.testing.assert_allclose(ref(i), direct, rtol=1e-5, atol=1e-6)
+def test_pareto_front_agrees_with_brute_force_on_random_points(rng):
+    for _ in range(5):
+        pts = [{"pass_ms": float(t), "psnr_db": float(p)} for t, p in rng.random((60, 2))]
+        expected = {i for i, p in enumerate(pts) if not any(_dominated(p, q) for q in pts)}
+        front = bench.pareto_front(pts)
+        assert set(front) == expected
+        assert [pts[i]["pass_ms"] for i in front] == sorted(pts[i]["pass_ms"] for i in front)
 
 
-def test_affine_detection_refuses_unrelated_lighting():
-    frames = [scene_frame("regular", n, 24, 14) for n in (1, 2, 3)]
-    frames.append(scene_frame("static", 4, 24, 14))
-    rng = np.random.default_rng(3)
-    frames[1] = dataclasses.replace(frames[1], lighting=rng.random(frames[1].lighting.shape))
-    assert bench._affine_coefficients(frames) is None
-
-
-def test_pareto_front_and_fixed_interpolation_known_values():
+def test_fixed_time_at_interpolates_log_time_and_extrapolates():
     pts = [
         {"method": "fixed", "pass_ms": 10.0, "psnr_db": 40.0},
         {"method": "fixed", "pass_ms": 100.0, "psnr_db": 50.0},
         {"method": "as_ccv", "pass_ms": 20.0, "psnr_db": 48.0},
         {"method": "as", "pass_ms": 120.0, "psnr_db": 49.0},
     ]
-    assert bench.pareto_front(pts) == [0, 2, 1]
     t, extra = bench.fixed_time_at(pts, 45.0)
     assert t == pytest.approx(math.sqrt(10.0 * 100.0)) and not extra
     t, extra = bench.fixed_time_at(pts, 55.0)
     assert t == pytest.approx(100.0 * math.sqrt(10.0)) and extra
+    # A slower fixed point that is worse than a faster one does not count.
+    slow = [*pts, {"method": "fixed", "pass_ms": 1000.0, "psnr_db": 45.0}]
+    assert bench.fixed_time_at(slow, 45.0)[0] == pytest.approx(100.0)
+    assert math.isnan(bench.fixed_time_at(pts[:1], 45.0)[0])
 
 
-def test_gather_roofline_counts_every_sample():
+def test_evaluate_targets_compares_values_with_thresholds():
+    t = bench.evaluate_targets(
+        {
+            "samples_time_r2": {"value": 0.96, "size": "8x8"},
+            "wall_s": 901.0,
+            "environment": {"cpus": 3},
+        }
+    )
+    assert t["samples_time_r2"] == {"value": 0.96, "target": ">= 0.95", "met": True, "size": "8x8"}
+    assert t["bench_wall_s"]["met"] is False and t["bench_wall_s"]["cpus"] == 3
+    nan = bench.evaluate_targets({"samples_time_r2": {"value": math.nan, "size": "8x8"}})
+    assert nan["samples_time_r2"]["met"] is False
+
+
+def test_config_refuses_unknown_sections():
+    with pytest.raises(ValueError, match="sections"):
+        dataclasses.replace(bench.QUICK, sections=("cost", "speed"))
+    with pytest.raises(ValueError, match="sections"):
+        dataclasses.replace(bench.QUICK, sections=())
+
+
+def test_rss_section_needs_a_measure():
+    with pytest.raises(ValueError, match="measure_rss"):
+        bench.run_sections(dataclasses.replace(bench.QUICK, sections=("rss",)))
+
+
+def test_clean_json_and_to_json():
+    data = {"a": math.nan, 3: (np.float32(0.5), np.int64(2)), "b": [math.inf, 1.5]}
+    assert bench.clean_json(data) == {"a": None, "3": [0.5, 2], "b": [None, 1.5]}
+    assert type(bench.clean_json(np.int64(2))) is int
+    assert bench.to_json(data).endswith("\n")
+
+
+def test_write_json_is_atomic_and_readable(tmp_path):
+    path = tmp_path / "sub" / "x.json"
+    bench.write_json(path, {"v": math.nan, "σ": 1})
+    assert json.loads(path.read_text(encoding="utf-8")) == {"v": None, "σ": 1}
+    assert [p.name for p in path.parent.iterdir()] == ["x.json"]  # no temporaries left
+
+
+# -- the gather roofline ---------------------------------------------------------------------
+def test_gather_indices_stay_within_radius_of_their_pixel():
+    counts = np.zeros((18, 32), np.int32)
+    counts[0, 0] = 3
+    counts[5:10, 20:25] = 7
+    counts[17, 31] = 2
+    q = bench.gather_indices(counts, seed=4, radius=3)
+    assert q.size == counts.sum()
+    centre = np.repeat(
+        np.flatnonzero(counts.reshape(-1)), counts.reshape(-1)[counts.reshape(-1) > 0]
+    )
+    qy, qx = np.divmod(q, 32)
+    cy, cx = np.divmod(centre, 32)
+    assert np.all(np.abs(qy - cy) <= 3) and np.all(np.abs(qx - cx) <= 3)
+    assert q.min() >= 0 and q.max() < counts.size
+    assert len(np.unique(q)) > 10  # offsets are random, not the centre
+
+
+def test_gather_ns_per_sample_divides_the_time_by_every_gather(monkeypatch):
+    shapes = []
+
+    def fake_best_of(fn, repeats=3):
+        shapes.append(fn().shape)
+        return 2e-3  # seconds
+
+    monkeypatch.setattr(bench, "_best_of", fake_best_of)
     light = np.ones((18, 32, 3), np.float32)
     counts = np.zeros((18, 32), np.int32)
     assert math.isnan(bench.gather_ns_per_sample(light, counts))
+    assert shapes == []
     counts[5:10, 5:10] = 7
-    assert bench.gather_ns_per_sample(light, counts) > 0
+    counts[0, 0] = 1
+    assert bench.gather_ns_per_sample(light, counts) == pytest.approx(2e6 / 176)
+    assert shapes == [(176, 3)]
 
 
-def test_config_from_args_refuses_unknown_sections():
-    args = bench.build_parser().parse_args(["--quick", "--sections", "pareto,cost"])
-    assert bench.config_from_args(args).sections == ("pareto", "cost")
-    with pytest.raises(ValueError, match="sections"):
-        bench.config_from_args(bench.build_parser().parse_args(["--sections", "speed"]))
+# -- running sequences -----------------------------------------------------------------------
+def test_fixed_takes_exactly_n_samples_on_pixels_that_need_distant_samples():
+    frames = [scene_frame("flash", n, 32, 18) for n in (1, 2)]
+    params = SSSParams(fixed_spp=5)
+    records, last = bench.run_sequence(frames, "fixed", params, keep_last=True)
+    need = last.mask & (last.gamma.max(axis=-1) >= params.eps_u)
+    assert need.any() and (last.mask & ~need).any()
+    assert np.all(last.counts[need] == 5) and np.all(last.counts[~need] == 0)
+    rec = records[-1]
+    assert rec["samples"] == 5 * int(need.sum()) == int(last.counts.sum())
+    assert rec["spp"] == pytest.approx(5 * need.sum() / last.mask.sum())
+    assert rec["sss_pixels"] == int(last.mask.sum())
+    assert [r["frame"] for r in records] == [1, 2]
+
+
+def test_reference_against_itself_has_the_psnr_cap():
+    frames = [scene_frame("flash", n, 24, 14) for n in (1, 2, 3)]  # lighting differs per frame
+    params = SSSParams(reference_spp=8)
+    proc = make_processor("reference", params)
+    refs = [proc.process(f).composite for f in frames]
+    records, _ = bench.run_sequence(frames, "reference", params, reference=refs.__getitem__)
+    assert [r["psnr_db"] for r in records] == [PSNR_CAP_DB] * 3
+    # The reference of another frame is not the cap: the index is what was compared.
+    shifted, _ = bench.run_sequence(frames, "reference", params, reference=lambda i: refs[i - 1])
+    assert all(r["psnr_db"] < PSNR_CAP_DB for r in shifted)
+
+
+def test_run_jobs_warms_up_and_records_from_the_given_frames():
+    frames = [scene_frame("flash", n, 24, 14) for n in range(1, 5)]
+    base = SSSParams(target_variance=1e-8)  # counts above β_min once there is history
+    late = bench.Job("late", "fixed", base, frames.__getitem__, first=1, record_from=2)
+    warm = bench.Job("warm", "as", base, frames.__getitem__, record_from=2)
+    bench.run_jobs([late, warm], len(frames))
+    assert [r["frame"] for r in late.records] == [3, 4]
+    assert [r["frame"] for r in warm.records] == [3, 4]
+    # The adaptive job had frames 1 and 2 of history: its counts left β_min.
+    cold, _ = bench.run_sequence(frames[2:], "as", base)
+    assert warm.records[0]["samples"] != cold[0]["samples"]
+
+
+def test_repeats_restore_the_state_between_repetitions():
+    frames = [scene_frame("flash", n, 24, 14) for n in range(1, 5)]
+    once, thrice = make_processor("as_ocv"), make_processor("as_ocv")
+    for frame in frames[:3]:
+        a, _ = bench.process_timed(once, frame, 1)
+        b, times = bench.process_timed(thrice, frame, 3)
+        assert len(times) == 3
+        np.testing.assert_array_equal(a.counts, b.counts)
+    np.testing.assert_array_equal(once.process(frames[3]).alpha, thrice.process(frames[3]).alpha)
+
+
+def test_separable_jobs_count_their_reads_as_samples():
+    frames = [scene_frame("flash", 1, 24, 14)]
+    sep = SeparableParams(kernel="svd2", taps=11)
+    records, last = bench.run_sequence(frames, "separable", SSSParams(), separable=sep)
+    assert records[0]["spp"] == 2 * 2 * 11
+    assert records[0]["samples"] == 2 * 2 * 11 * records[0]["sss_pixels"]
+
+
+# -- the reference ------------------------------------------------------------------------
+def test_affine_reference_equals_the_reference_with_the_same_samples():
+    frames = [scene_frame("flash", n, 24, 14) for n in range(1, 10)]
+    params = SSSParams(reference_spp=32)
+    ref, info = bench.reference_composites(frames, params)
+    assert info["mode"] == "affine"
+    proc = make_processor("reference", params)
+    for i in (0, 4, 8):
+        direct = proc.process(dataclasses.replace(frames[i], number=0)).composite
+        np.testing.assert_allclose(ref(i), direct, rtol=1e-5, atol=1e-6)
+
+
+def test_affine_detection_refuses_unrelated_lighting_or_weights(rng):
+    frames = [scene_frame("flash", n, 24, 14) for n in (1, 2, 3)]
+    assert bench._affine_coefficients(frames) is not None
+    lit = list(frames)
+    lit[1] = dataclasses.replace(frames[1], lighting=rng.random(frames[1].lighting.shape))
+    assert bench._affine_coefficients(lit) is None
+    weighted = list(frames)
+    weight = np.full(frames[2].shape, 0.5, np.float32)
+    weighted[2] = dataclasses.replace(frames[2], sss_weight=weight)
+    assert bench._affine_coefficients(weighted) is None
+
+
+# -- the smoke run (QUICK, every section, memory measured by a fake) ---------------------------
+def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
+    r, _ = smoke
+    rows = r["cost"]["sizes"]["32x18"]
+    assert set(rows) == set(bench.COST_METHODS)
+    for method, row in rows.items():
+        assert row["samples"] > 0, method
+        assert row["ns_per_sample"] == pytest.approx(row["pass_ms"] * 1e6 / row["samples"])
+        assert row["ratio_to_gather"] == pytest.approx(
+            row["ns_per_sample"] / row["gather_ns_per_sample"]
+        )
+        assert row["overhead_fraction"] == pytest.approx(row["update_ms"] / row["total_ms"])
+    assert rows["fixed"]["update_ms"] < min(rows[m]["update_ms"] for m in bench.ADAPTIVE)
+    assert r["ns_per_sample"] == {"method": "as_ccv", "32x18": rows["as_ccv"]["ns_per_sample"]}
+    assert r["overhead_fraction"]["as_ocv"] == rows["as_ocv"]["overhead_fraction"]
+    breakdown = r["cost"]["breakdown"]
+    assert "unavailable" not in breakdown, breakdown.get("unavailable")
+
+
+def test_smoke_fit_r2_matches_an_independent_fit(smoke):
+    fit = smoke[0]["samples_time_r2"]
+    x = np.array([p[0] for p in fit["points"]], float)
+    y = np.array([p[1] for p in fit["points"]], float)
+    labels = {p[2] for p in fit["points"]}
+    assert labels == {"fixed N=2", "fixed N=8", "as", "as_ocv", "as_ccv"}
+    assert fit["value"] == pytest.approx(np.corrcoef(x, y)[0, 1] ** 2, rel=1e-9)
+    assert fit["slope_ns_per_sample"] == pytest.approx(np.polyfit(x, y, 1)[0] * 1e6, rel=1e-9)
+    # fixed N = 8 takes 4× the samples of N = 2 on the same pixels.
+    cfg = fit["configs"]
+    assert cfg["fixed N=8"]["samples"] == 4 * cfg["fixed N=2"]["samples"]
+
+
+def test_smoke_coverage_and_resolution_rows(smoke):
+    r, _ = smoke
+    cov = r["coverage_scaling"]["rows"]
+    assert [row["coverage"] for row in cov] == [0.5, 1.0]
+    assert cov[1]["sss_pixels"] == 32 * 18  # the whole image
+    assert cov[0]["sss_ratio"] == pytest.approx(0.5, abs=0.1)
+    assert cov[1]["time_ratio"] == 1.0 and cov[1]["pass_ratio"] == 1.0
+    eps = r["coverage_scaling"]["eps_u"]
+    # ε_u at the median max γ keeps (at least) half of the SSS pixels, fewer than before.
+    assert eps["raised"]["distant_pixels"] >= 0.5 * eps["raised"]["sss_pixels"]
+    assert eps["raised"]["distant_pixels"] < eps["default"]["distant_pixels"]
+    assert eps["distant_ratio"] == pytest.approx(
+        eps["raised"]["distant_pixels"] / eps["default"]["distant_pixels"]
+    )
+    res = r["resolution_scaling"]["rows"]
+    assert [row["pixels"] for row in res] == [32 * 18, 64 * 36]
+    for row in res:
+        assert row["ns_per_pixel"] == pytest.approx(row["total_ms"] * 1e6 / row["pixels"])
+        assert row["ns_per_sample"] == pytest.approx(row["pass_ms"] * 1e6 / row["samples"])
+
+
+def test_smoke_rss_table_follows_the_measured_specs(smoke):
+    r, calls = smoke
+    (specs,) = calls
+    assert [(s["size"], s["method"], s["precision"], s["frames"]) for s in specs] == [
+        ([32, 18], "as_ocv", "float32", 1),
+        ([32, 18], "as_ocv", "float16", 1),
+        ([32, 18], "as_ocv", "float32", 2),  # the second-frame check
+    ]
+    rss = r["peak_rss_mb"]
+    assert rss["32x18"] == {"as_ocv": {"float32": 100.0, "float16": 101.0}}
+    assert rss["second_frame_check"]["one_frame_mb"] == 100.0
+    assert rss["second_frame_check"]["two_frames_mb"] == 102.0
+    assert [row["source"] for row in rss["rows"]] == ["fake", "fake"]
+
+
+def test_rss_specs_add_the_separable_method_once():
+    specs, check = bench.rss_specs(
+        dataclasses.replace(bench.QUICK, rss_methods=("fixed",), rss_separable=True)
+    )
+    assert [(s["method"], s["precision"]) for s in specs] == [
+        ("fixed", "float32"),
+        ("separable", "float32"),
+    ]
+    assert check is None  # no adaptive configuration to check
+
+
+def test_smoke_pareto_points(smoke):
+    par = smoke[0]["pareto"]
+    assert par["reference"]["mode"] == "affine"
+    pts = {p["label"]: p for p in par["points"]}
+    assert {"fixed N=1", "fixed N=16", "as σ0²=0.01", "as_ccv σ0²=0.01 β_min=4"} <= set(pts)
+    for p in par["points"]:
+        assert p["frames"] == bench.QUICK.pareto_frames
+        assert len(p["per_frame"]) == p["frames"]
+        assert p["psnr_db"] == pytest.approx(np.mean([f[2] for f in p["per_frame"]]))
+    # fixed N: N samples on the same pixels, so spp/N is one number; more samples, less noise.
+    fixed = [pts[f"fixed N={n}"] for n in bench.QUICK.fixed_spp]
+    share = fixed[0]["spp"] / bench.QUICK.fixed_spp[0]
+    for n, p in zip(bench.QUICK.fixed_spp, fixed):
+        assert p["spp"] == pytest.approx(n * share)
+    assert fixed[0]["psnr_db"] < fixed[1]["psnr_db"] < fixed[2]["psnr_db"]
+    # separable: every kernel, its reads per pixel (2·J·taps) as spp.
+    sep = [p for p in par["points"] if p["method"] == "separable"]
+    assert len(sep) == len(bench.separable_kernels()[0])
+    assert pts["separable svd2"]["spp"] == 2 * 2 * SeparableParams().taps
+
+
+def test_smoke_front_flags_are_the_non_dominated_points(smoke):
+    par = smoke[0]["pareto"]
+    pts = par["points"]
+    for p in pts:
+        assert p["front"] == (not any(_dominated(p, q) for q in pts)), p["label"]
+    assert par["front"] == [p["label"] for p in pts if p["front"]]
+
+
+def test_smoke_calibration_holds_the_swept_curves(smoke):
+    par = smoke[0]["pareto"]
+    cal = quality.Calibration.from_dict(par["calibration"])
+    assert {"fixed", "as", "as_ocv", "as_ccv"} <= set(cal.methods)
+    (fixed,) = par["calibration"]["methods"]["fixed"]["families"]
+    assert fixed["values"] == list(bench.QUICK.fixed_spp)
+    fams = par["calibration"]["methods"]["as_ccv"]["families"]
+    assert [f["fixed"]["beta_min"] for f in fams] == [8, 4]
+    assert fams[0]["values"] == list(bench.QUICK.sigmas)
+    assert fams[1]["values"] == list(bench.QUICK.calib_families[0][1])
+    sweep = [p for p in par["points"] if p["method"] == "as_ccv" and p["beta_min"] == 8]
+    assert fams[0]["psnr_db"] == [p["psnr_db"] for p in sweep]
+
+
+def test_smoke_quality_checks_measure_what_the_calibration_chose(smoke):
+    checks = smoke[0]["pareto"]["quality_checks"]
+    psnr_check, spp_check = checks["psnr"], checks["spp"]
+    assert psnr_check["target"] == 45.0 and spp_check["target"] == bench.QUICK.check_spp
+    assert psnr_check["error"] == pytest.approx(psnr_check["measured_psnr_db"] - 45.0)
+    assert spp_check["error"] == pytest.approx(spp_check["measured_spp"] - bench.QUICK.check_spp)
+    # spp follows the chosen parameters on the independent seed (β_min-bound here).
+    for c in (psnr_check, spp_check):
+        assert c["measured_spp"] == pytest.approx(c["predicted_spp"], rel=0.05)
+
+
+def test_smoke_result_is_json_without_nan(smoke):
+    r, _ = smoke
+
+    def refuse(name):
+        raise AssertionError(f"{name} in the JSON")
+
+    data = json.loads(bench.to_json(r), parse_constant=refuse)
+    assert set(data["section_s"]) == set(bench.SECTIONS)
+    assert set(data) >= {"cost", "samples_time_r2", "coverage_scaling", "peak_rss_mb", "pareto"}

@@ -4,13 +4,11 @@ Remedy (core.history): in float16 the covariances are stored as Σ/η_cv and
 the tracked variance as σ²/σ0². Without the scales the paper's η_cv = 1e-6
 flushes every Σ to zero (the online CV silently becomes α = 1), and σ0² at
 the limits of its range (1e-12 underflows, 1e6 overflows 65504) drives the
-counts to β_min. The full measurement is ``python -m cvsss.core.studies.fp16
---out out`` (300 flash frames at 96x54); these tests run it smaller.
+counts to β_min. The full measurement is ``cvsss fp16 --out out`` (300 flash frames at
+96x54); these tests run it smaller.
 """
 
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
@@ -133,30 +131,3 @@ def test_variance_scaling_remedy(flash300):
     assert base > 9.0
     assert rows["1e-12"]["float16_unscaled"] == 8.0
     assert rows["1e+06"]["float16_unscaled"] == 8.0
-
-
-def test_study_main_writes_json(tmp_path, capsys):
-    assert (
-        fp16.main(
-            [
-                "--out",
-                str(tmp_path),
-                "--frames",
-                "6",
-                "--res",
-                "24x16",
-                "--methods",
-                "as_ocv,as",
-                "--long-frames",
-                "5",
-            ]
-        )
-        == 0
-    )
-    data = json.loads((tmp_path / "fp16.json").read_text())
-    assert data["frames"] == 6 and set(data["drift"]) == {"as_ocv", "as"}
-    assert [r["frame"] for r in data["long_run"]] == [5]
-    assert data["command"].startswith("python -m cvsss.core.studies.fp16")
-    assert "float16 vs float32" in capsys.readouterr().out
-    with pytest.raises(SystemExit):
-        fp16.main(["--out", str(tmp_path), "--methods", "fixed"])

@@ -1,20 +1,20 @@
-"""The 1D studies: coefficient study (P Fig. 5) and motivating example (P Fig. 2).
+"""The studies: coefficient study (P Fig. 5), motivating example (P Fig. 2), separable kernels.
 
 Margins were measured over base seeds 0–7 (cv1d, 200 seeds) and six hash
 seeds (fig2, 2 streams) before being asserted; the observed spread is noted
-next to each tolerance.
+next to each tolerance. Their command lines, files and figures are tested in
+tests/sss_addon/test_bench_cli.py.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 
-from cvsss.core.params import SSSParams
-from cvsss.core.studies import cv1d, fig2
+from cvsss.core.params import KERNELS, SSSParams
+from cvsss.core.studies import cv1d, fig2, fp16, separable_kernels
 
 CV_SEEDS = 200
 FIG2_STREAMS = 2
@@ -142,18 +142,6 @@ def test_cv1d_table_lists_every_configuration(cv):
     assert f"{cv['dynamic']['hat_emcm']:.5f}" in table
 
 
-def test_cv1d_main_writes_files(tmp_path, capsys):
-    pytest.importorskip("matplotlib")
-    assert cv1d.main(["--out", str(tmp_path), "--seeds", "20"]) == 0
-    summary = json.loads((tmp_path / "cv1d.json").read_text())
-    assert "curves" not in summary
-    assert set(summary["dynamic"]) == set(cv1d.CONFIGS)
-    curves = json.loads((tmp_path / "cv1d_curves.json").read_text())
-    assert len(curves["dynamic"]["remse"]["hat_emcm"]) == cv1d.FRAMES
-    assert (tmp_path / "cv1d.png").stat().st_size > 0
-    assert "| configuration |" in capsys.readouterr().out
-
-
 # --- fig2: motivating example --------------------------------------------
 
 
@@ -221,21 +209,39 @@ def test_fig2_intensity_rejects_unknown_scenario():
         fig2.intensity("flicker")
 
 
-def test_fig2_main_writes_files(tmp_path, capsys):
-    pytest.importorskip("matplotlib")
-    assert fig2.main(["--out", str(tmp_path), "--seeds", "1"]) == 0
-    summary = json.loads((tmp_path / "fig2.json").read_text())
-    for key in (
-        "as_static",
-        "as_dynamic",
-        "as_ocv_dynamic",
-        "as_ccv_dynamic",
-        "as_ocv_static",
-        "as_ccv_static",
-        "increase_as",
-        "removed_by_ocv",
-        "removed_by_ccv",
-    ):
-        assert math.isfinite(summary[key]), key
-    assert (tmp_path / "fig2.png").stat().st_size > 0
-    assert "AS+OCV" in capsys.readouterr().out
+# --- separable kernels and fp16: boundaries and table structure ----------
+
+
+@pytest.fixture(scope="module")
+def sep() -> dict:
+    return separable_kernels.run(
+        32, 18, 1, taps=(11,), reference_spp=8, presets_table=False, machine="test machine"
+    )
+
+
+def test_separable_kernels_cost_rows_cover_every_kernel(sep):
+    assert [c["kernel"] for c in sep["cost"]] == list(KERNELS)
+    passes = {c["kernel"]: c["passes"] for c in sep["cost"]}
+    assert passes["svd3"] == 6 and passes["gaussians"] == 2 * sep["gaussians"]
+    assert passes["pre_integrated"] == passes["artist"] == 2
+    assert all(c["taps"] == 11 and c["sss_pixels"] > 0 for c in sep["cost"])
+    assert sep["machine"] == "test machine" and sep["preset_errors"] == {}
+
+
+def test_separable_kernels_svd_error_falls_with_rank(sep):
+    for material, errors in sep["errors"].items():
+        ranks = [np.mean(errors[f"svd{k}"]) for k in (1, 2, 3, 4)]
+        assert ranks == sorted(ranks, reverse=True), material
+        # The energy rescaling costs L2 accuracy: never below the Eckart–Young optimum.
+        for k in (1, 2, 3, 4):
+            optimum = sep["svd_optimum_errors"][material][f"svd{k}"]
+            assert np.all(np.asarray(errors[f"svd{k}"]) >= np.asarray(optimum) - 1e-9)
+    table = separable_kernels.format_tables(sep)
+    assert all(f"| {k} |" in table for k in KERNELS)
+
+
+def test_separable_kernels_and_fp16_refuse_bad_arguments():
+    with pytest.raises(ValueError, match="frames"):
+        separable_kernels.run(16, 9, 0)
+    with pytest.raises(ValueError, match="methods"):
+        fp16.measure(frames=2, width=8, height=8, methods=("fixed",))

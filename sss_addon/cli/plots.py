@@ -1,15 +1,19 @@
-"""Shared matplotlib helpers of the 1D studies.
+"""Shared matplotlib helpers of the bench and study figures.
 
 matplotlib is an optional (dev) dependency: it is imported lazily, with the
-non-interactive Agg backend, only when a figure is written, so the studies'
-numbers can be computed on a machine without it.
+non-interactive Agg backend, only when a figure is written, so the numbers
+can be computed on a machine without it. Figures are written atomically
+(:mod:`cvsss.core.io.atomic`), like every other output.
 """
 
 from __future__ import annotations
 
+import io
 import warnings
 from pathlib import Path
 from typing import Any
+
+from ...core.io.atomic import write_bytes
 
 #: One colour per configuration name, shared by the figures of the studies.
 COLOURS = {
@@ -37,7 +41,7 @@ def pyplot() -> Any:
         import matplotlib
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError(
-            "matplotlib is needed to write the study figures: pip install matplotlib"
+            "matplotlib is needed to write the figures: pip install matplotlib"
         ) from exc
     matplotlib.use("Agg", force=True)
     with warnings.catch_warnings():
@@ -49,14 +53,17 @@ def pyplot() -> Any:
 
 
 def save(fig: Any, path: str | Path, dpi: int = 120) -> Path:
-    """Write ``fig`` to ``path`` (parents created) and close it."""
+    """Write ``fig`` to ``path`` atomically (parents created; format from the suffix) and close it."""
     plt = pyplot()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with warnings.catch_warnings():
-        # Log-axis tick labels go through mathtext (see pyplot()).
-        warnings.simplefilter("ignore", DeprecationWarning)
-        fig.tight_layout()
-        fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    buffer = io.BytesIO()
+    try:
+        with warnings.catch_warnings():
+            # Log-axis tick labels go through mathtext (see pyplot()).
+            warnings.simplefilter("ignore", DeprecationWarning)
+            fig.tight_layout()
+            fig.savefig(buffer, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
+    write_bytes(path, buffer.getvalue())
     return path

@@ -1,0 +1,583 @@
+"""``cvsss bench`` (``make bench``): the run, its memory measurement, files and plots.
+
+The measuring functions are in :mod:`cvsss.core.eval.bench` (what each figure
+means is documented there). This front-end adds what core does not do:
+
+- peak resident memory, one fresh subprocess per configuration
+  (``python -m cvsss.sss_addon.cli.bench --rss-worker JSON``, VmHWM from
+  ``/proc/self/status``, or ``ru_maxrss`` where there is no /proc);
+- the machine it ran on (``environment``: CPU, load average, git revision);
+- the files: ``OUT/bench.json``, ``OUT/quality_calibration.json`` (and the
+  shipped ``core/data/quality_calibration.json`` with ``--write-calibration``),
+  ``pareto.png``, ``quality.png`` and ``scaling.png``; progress and a summary
+  of the targets on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.eval import bench, quality
+from ...core.io.atomic import make_folder
+from ...core.methods import make_processor
+from ...core.params import SSSParams
+from ...core.synthetic import scene_frame
+from .plots import pyplot, save
+
+#: The command that regenerates out/bench (recorded in bench.json).
+REGENERATE = "cvsss bench --out out/bench"
+#: Seconds one RSS subprocess may take.
+RSS_TIMEOUT_S = 1800
+
+
+# -- command line -----------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The flags of ``cvsss bench`` on ``parser``."""
+    parser.add_argument("--out", type=Path, default=Path("out/bench"), help="output directory")
+    parser.add_argument(
+        "--passes",
+        type=Path,
+        default=None,
+        help="pass directory for the Pareto sequence (default: synthetic flash)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="tiny sizes and few frames (seconds; a smoke run, not a measurement)",
+    )
+    parser.add_argument(
+        "--sections",
+        default=None,
+        help=f"comma-separated subset of {','.join(bench.SECTIONS)}",
+    )
+    parser.add_argument(
+        "--write-calibration",
+        action="store_true",
+        help="also replace the shipped core/data/quality_calibration.json",
+    )
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--rss-worker", default=None, help=argparse.SUPPRESS)
+    return parser
+
+
+def add_parser(subparsers: Any) -> None:
+    """Add the ``bench`` subcommand to ``subparsers`` (of ``cvsss``)."""
+    add_arguments(
+        subparsers.add_parser(
+            "bench",
+            help="speed and the speed/accuracy trade, measured (out/bench/bench.json + plots)",
+            description="Speed and the speed/accuracy trade, measured.",
+        )
+    )
+
+
+def config_from_args(args: argparse.Namespace) -> bench.BenchConfig:
+    """The BenchConfig of ``--quick`` and ``--sections``.
+
+    Raises
+    ------
+    ValueError
+        ``--sections`` names an unknown section or none.
+    """
+    cfg = bench.QUICK if args.quick else bench.BenchConfig()
+    if args.sections:
+        names = tuple(s.strip() for s in args.sections.split(",") if s.strip())
+        bad = [s for s in names if s not in bench.SECTIONS]
+        if bad or not names:
+            raise ValueError(
+                f"--sections must be a subset of {','.join(bench.SECTIONS)}, "
+                f"got {args.sections!r}"
+            )
+        cfg = dataclasses.replace(cfg, sections=names)
+    return cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``cvsss bench`` from parsed arguments; returns the exit status.
+
+    Raises
+    ------
+    ValueError
+        Bad user input (an unknown section, a malformed ``--rss-worker`` spec).
+    """
+    if args.rss_worker:
+        print(json.dumps(rss_worker(json.loads(args.rss_worker))))
+        return 0
+    run_bench(
+        args.out,
+        config_from_args(args),
+        passes=args.passes,
+        write_calibration=args.write_calibration,
+        plots=not args.no_plots,
+    )
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m cvsss.sss_addon.cli.bench``: the same flags as ``cvsss bench``."""
+    parser = add_arguments(
+        argparse.ArgumentParser(
+            prog="cvsss bench", description="Speed and the speed/accuracy trade, measured."
+        )
+    )
+    args = parser.parse_args(None if argv is None else list(argv))
+    try:
+        return run(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+# -- memory ------------------------------------------------------------------------
+def _proc_status(field_name: str) -> float | None:
+    """A ``/proc/self/status`` field in MiB (Linux), else None."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith(field_name + ":"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak() -> bool:
+    """Reset VmHWM to the current RSS (Linux ≥ 4.0); False when unsupported."""
+    try:
+        with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _max_rss_mb() -> float:
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
+
+
+def rss_worker(spec: dict) -> dict:
+    """Post-process frames of one configuration and report this process's memory.
+
+    Run in a fresh subprocess per configuration (``python -m
+    cvsss.sss_addon.cli.bench --rss-worker JSON``, ``spec`` one of
+    :func:`cvsss.core.eval.bench.rss_specs`) so configurations do not
+    contaminate each other. Reports the peak over the whole process
+    (interpreter, inputs, post-process) and, where Linux allows resetting the
+    high-water mark, the peak while post-processing with the frame already in
+    memory.
+    """
+    w, h = spec["size"]
+    params = SSSParams(history_precision=spec["precision"], seed=spec.get("seed", 0))
+    proc = make_processor(spec["method"], params)
+    baseline = _proc_status("VmRSS")
+    peak_input = 0.0
+    post_peak = None
+    input_mb = history_mb = 0.0
+    for n in range(1, spec["frames"] + 1):
+        frame = scene_frame(spec["scene"], n, w, h)
+        passes = (frame.lighting, frame.albedo, frame.combined, frame.depth, frame.material)
+        input_mb = sum(a.nbytes for a in passes) / 2**20
+        del passes
+        peak_input = max(peak_input, _proc_status("VmHWM") or 0.0)
+        reset = _reset_peak()
+        result = proc.process(frame)
+        del result, frame
+        if reset:
+            post_peak = max(post_peak or 0.0, _proc_status("VmHWM") or 0.0)
+    history = getattr(proc, "history", None)  # Monte Carlo methods only
+    if history is not None:
+        history_mb = history.nbytes() / 2**20
+    peak = max(peak_input, post_peak or 0.0, 0.0)
+    if peak == 0.0:
+        peak = _max_rss_mb()
+    return {
+        "peak_rss_mb": peak,
+        "post_process_peak_mb": post_peak,
+        "baseline_mb": baseline,
+        "input_mb": input_mb,
+        "history_mb": history_mb,
+        "source": ("VmHWM" if baseline is not None else "ru_maxrss"),
+    }
+
+
+def _spawn_rss(spec: dict) -> dict:
+    cmd = [sys.executable, "-m", f"{__package__}.bench", "--rss-worker", json.dumps(spec)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=RSS_TIMEOUT_S, check=False)
+    if proc.returncode != 0:
+        return {"error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def measure_rss(workers: int) -> bench.MeasureRss:
+    """Measures each spec in its own subprocess, ``workers`` at a time (results in order)."""
+
+    def measure(specs: list[dict]) -> list[dict]:
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+            return list(pool.map(_spawn_rss, specs))
+
+    return measure
+
+
+# -- the whole run ------------------------------------------------------------------
+def environment() -> dict:
+    """The machine and code the bench ran on."""
+    env = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "machine": platform.machine(),
+        "system": platform.system(),
+        "cpus": os.cpu_count(),
+        "processor": platform.processor() or None,
+        "load_average_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+    }
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            env["cpu_model"] = next(
+                (ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), None
+            )
+    except OSError:
+        pass
+    root = Path(__file__).resolve().parents[2]
+
+    def git(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            ["git", "-C", str(root), *argv], capture_output=True, text=True, timeout=10, check=False
+        )
+
+    try:
+        rev, dirty = git("rev-parse", "--short", "HEAD"), git("status", "--porcelain")
+        if rev.returncode == 0:
+            env["git"] = rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return env
+
+
+def run_bench(
+    out: Path,
+    config: bench.BenchConfig | None = None,
+    *,
+    passes: Path | None = None,
+    write_calibration: bool = False,
+    plots: bool = True,
+    log: Callable[[str], None] | None = print,
+) -> dict:
+    """Run the bench, write ``out/bench.json``, the calibration and the plots.
+
+    Parameters
+    ----------
+    out : output directory
+    config : BenchConfig, default the full ``make bench`` configuration
+    passes : pass directory to use for the Pareto sequence instead of the
+        synthetic one (timing sections stay synthetic: they need sizes and
+        coverages the directory does not have)
+    write_calibration : also replace the shipped ``core/data/quality_calibration.json``
+    plots : write the PNG figures (needs matplotlib)
+    log : progress lines (default: printed), None for silence
+
+    Returns
+    -------
+    dict, the content of bench.json (before NaN → null)
+    """
+    cfg = config or bench.BenchConfig()
+    out = Path(out)
+    make_folder(out)
+    start = time.perf_counter()
+    result: dict[str, Any] = {
+        "version": 1,
+        "command": REGENERATE,
+        "config": cfg.to_dict(),
+        "environment": environment(),
+    }
+    result.update(
+        bench.run_sections(
+            cfg, passes=passes, measure_rss=measure_rss(cfg.rss_workers), log=log, start=start
+        )
+    )
+    if "pareto" in result:
+        cal = result["pareto"]["calibration"]
+        bench.write_json(out / "quality_calibration.json", cal)
+        if write_calibration:
+            bench.write_json(quality.CALIBRATION_PATH, cal)
+            quality._load_cached.cache_clear()
+    result["wall_s"] = time.perf_counter() - start
+    if hasattr(os, "getloadavg"):
+        # Other processes on the machine slow some frames; interleaving spreads that over
+        # every configuration, but the load is recorded so a noisy run can be recognised.
+        result["environment"]["load_average_1min_end"] = os.getloadavg()[0]
+    result["targets"] = bench.evaluate_targets(result)
+    if plots:
+        try:
+            result["plots"] = [p.name for p in write_plots(result, out)]
+        except ImportError as exc:
+            result["plots"] = []
+            if log:
+                log(f"[{time.perf_counter() - start:7.1f} s] no plots: {exc}")
+    bench.write_json(out / "bench.json", result)
+    if log:
+        log(format_summary(result))
+        log(f"wrote {out / 'bench.json'} in {result['wall_s']:.0f} s")
+    return result
+
+
+def format_summary(result: dict) -> str:
+    """The targets as a small text table."""
+    lines = ["target                                  value        target     met"]
+    for name, t in result.get("targets", {}).items():
+        v = t["value"]
+        vs = "n/a" if v is None else f"{v:.4g}"
+        lines.append(f"{name:<38} {vs:>10}   {t['target']:>10}   {'yes' if t['met'] else 'NO'}")
+    return "\n".join(lines)
+
+
+# -- plots ----------------------------------------------------------------------------
+_COLOURS = {
+    "fixed": "tab:gray",
+    "as": "tab:green",
+    "as_ocv": "tab:blue",
+    "as_ccv": "tab:red",
+    "separable": "tab:purple",
+}
+
+
+def write_plots(result: dict, out: Path) -> list[Path]:
+    """pareto.png and quality.png (with a Pareto section) and scaling.png from a bench result."""
+    plt = pyplot()
+    written = []
+    par = result.get("pareto")
+    if par:
+        written.append(_plot_pareto(plt, par, out / "pareto.png"))
+        written.append(_plot_quality(plt, par, out / "quality.png"))
+    written.append(_plot_scaling(plt, result, out / "scaling.png"))
+    return written
+
+
+def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    pts = par["points"]
+    for ax, xkey, xlabel in (
+        (axes[0], "pass_ms", "mean sampling-pass time per frame (ms)"),
+        (axes[1], "spp", "mean samples per SSS pixel"),
+    ):
+        for method in dict.fromkeys(p["method"] for p in pts):
+            if xkey == "spp" and method == "separable":
+                continue  # reads per pixel, not samples
+            for fam, marker, fill in (("sweep", "o", True), ("calibration", "s", False)):
+                ps = [p for p in pts if p["method"] == method and p["family"] == fam]
+                if not ps:
+                    continue
+                c = _COLOURS.get(method, "k")
+                ax.scatter(
+                    [p[xkey] for p in ps],
+                    [p["psnr_db"] for p in ps],
+                    marker=marker,
+                    facecolors=c if fill else "none",
+                    edgecolors=c,
+                    s=36,
+                    label=method if fam == "sweep" else f"{method} (other β_min / σ0²)",
+                )
+                if fam == "sweep" and method != "separable":
+                    ps = sorted(ps, key=lambda p: p["value"])
+                    ax.plot(
+                        [p[xkey] for p in ps],
+                        [p["psnr_db"] for p in ps],
+                        color=c,
+                        lw=0.8,
+                        alpha=0.6,
+                    )
+        if xkey == "pass_ms":
+            front = sorted((p for p in pts if p["front"]), key=lambda p: p["pass_ms"])
+            ax.step(
+                [p["pass_ms"] for p in front],
+                [p["psnr_db"] for p in front],
+                where="post",
+                color="k",
+                lw=2,
+                alpha=0.5,
+                label="Pareto front",
+            )
+            for p in front:
+                if p["family"] != "sweep":
+                    continue  # calibration-only points: markers without labels
+                ax.annotate(
+                    p["label"].replace("σ0²=", ""),
+                    (p["pass_ms"], p["psnr_db"]),
+                    fontsize=6,
+                    xytext=(3, -8),
+                    textcoords="offset points",
+                )
+        ax.set_xscale("log")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("mean PSNR vs reference (dB)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7, loc="lower right")
+    axes[0].set_title(f"{par['scene']} {par['size']}, {par['frames']} frames")
+    axes[1].set_title("same points against mean spp")
+    return save(fig, path)
+
+
+def _plot_quality(plt: Any, par: dict, path: Path) -> Path:
+    cal = par["calibration"]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for method in bench.ADAPTIVE:
+        for fam in cal["methods"].get(method, {}).get("families", []):
+            bm = fam["fixed"].get("beta_min")
+            style = {8: "-", 4: "--", 2: ":"}.get(bm, "-.")
+            kw = {"color": _COLOURS[method], "ls": style, "marker": "o", "ms": 3}
+            axes[0].plot(fam["values"], fam["psnr_db"], label=f"{method} β_min={bm}", **kw)
+            axes[1].plot(fam["values"], fam["spp"], **kw)
+    q = par["quality_checks"]
+    for key, ax in (("psnr", axes[0]), ("spp", axes[1])):
+        c = q.get(key)
+        if c and "target_variance" in c["choice"]:
+            y = c["measured_psnr_db"] if key == "psnr" else c["measured_spp"]
+            ax.scatter(
+                [c["choice"]["target_variance"]],
+                [y],
+                marker="*",
+                s=160,
+                color="k",
+                zorder=5,
+                label=f"asked {c['target']:g} {'dB' if key == 'psnr' else 'spp'}"
+                f": measured {y:.1f}",
+            )
+            ax.axhline(c["target"], color="k", lw=0.6, ls="--")
+    for ax, ylab in ((axes[0], "mean PSNR (dB)"), (axes[1], "mean spp")):
+        ax.set_xscale("log")
+        ax.set_xlabel("σ0² (target variance of tracked luminance)")
+        ax.set_ylabel(ylab)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0].set_title(f"quality knob calibration ({cal['resolution']})")
+    return save(fig, path)
+
+
+def _time_panel(
+    ax: Any, x: list[float], rows: list[dict], keys: tuple[str, str], suffix: str = ""
+) -> None:
+    """Frame total and sampling pass (``keys``) of scaling rows against ``x``."""
+    ax.plot(x, [r[keys[0]] for r in rows], "o-", label=f"frame total{suffix}")
+    ax.plot(x, [r[keys[1]] for r in rows], "s-", label=f"sampling pass{suffix}")
+
+
+def _plot_scaling(plt: Any, result: dict, path: Path) -> Path:
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
+    fit = result.get("samples_time_r2")
+    if fit:
+        ax = axes[0, 0]
+        for lab in dict.fromkeys(p[2] for p in fit["points"]):
+            ps = [p for p in fit["points"] if p[2] == lab]
+            ax.scatter([p[0] / 1e6 for p in ps], [p[1] for p in ps], s=14, label=lab)
+        xs = np.linspace(0, max(p[0] for p in fit["points"]), 10)
+        ax.plot(xs / 1e6, fit["intercept_ms"] + fit["slope_ns_per_sample"] * 1e-6 * xs, "k--", lw=1)
+        ax.set(
+            xlabel="samples per frame (millions)",
+            ylabel="sampling pass (ms)",
+            title=f"time vs samples {fit['size']}: R² = {fit['value']:.4f}",
+        )
+        ax.legend(fontsize=6)
+    cost = result.get("cost")
+    if cost:
+        ax = axes[0, 1]
+        sizes = list(cost["sizes"])
+        width = 0.8 / (len(sizes) * 2)
+        for j, size in enumerate(sizes):
+            rows = cost["sizes"][size]
+            xs = np.arange(len(rows))
+            ax.bar(
+                xs + (2 * j) * width,
+                [r["ns_per_sample"] for r in rows.values()],
+                width,
+                label=f"sampling step {size}",
+            )
+            ax.bar(
+                xs + (2 * j + 1) * width,
+                [r["gather_ns_per_sample"] for r in rows.values()],
+                width,
+                label=f"np.take gather {size}",
+                hatch="//",
+            )
+            ax.set_xticks(xs + width * (len(sizes) - 0.5), list(rows))
+        ax.set(ylabel="ns per sample", title="cost per sample vs the gather roofline")
+        ax.set_yscale("log")
+        ax.legend(fontsize=6)
+        bd = {
+            k: v
+            for k, v in cost.get("breakdown", {}).items()
+            if isinstance(v, float) and k != "samples"
+        }
+        if bd:
+            ax = axes[0, 2]
+            ax.barh(list(bd), list(bd.values()), color="tab:gray")
+            ax.set(xlabel="ns per sample", title=f"building blocks ({cost['breakdown']['size']})")
+    cov = result.get("coverage_scaling")
+    if cov:
+        ax = axes[1, 0]
+        rows = cov["rows"]
+        _time_panel(ax, [r["sss_pixels"] / 1e3 for r in rows], rows, ("total_ms", "pass_ms"))
+        if "eps_u" in cov:
+            e = cov["eps_u"]
+            ax.plot(
+                [e["default"]["distant_pixels"] / 1e3, e["raised"]["distant_pixels"] / 1e3],
+                [e["default"]["pass_ms"], e["raised"]["pass_ms"]],
+                "k*--",
+                ms=10,
+                label=f"scene, ε_u {e['default_eps_u']:g} → {e['eps_u']:.2f} "
+                "(x = pixels above ε_u)",
+            )
+        ax.set(
+            xlabel="SSS pixels (thousands)",
+            ylabel="ms per frame",
+            title=f"coverage 10/50/100 % ({cov['size']}, {cov['method']})",
+        )
+        ax.legend(fontsize=7)
+    res = result.get("resolution_scaling")
+    if res:
+        ax = axes[1, 1]
+        rows = res["rows"]
+        _time_panel(
+            ax,
+            [r["pixels"] / 1e6 for r in rows],
+            rows,
+            ("ns_per_pixel", "pass_ns_per_pixel"),
+            " / pixel",
+        )
+        ax.set_xscale("log")
+        ax.set(
+            xlabel="megapixels",
+            ylabel="ns per pixel",
+            ylim=(0, None),
+            title=f"resolution scaling ({res['method']})",
+        )
+        ax.legend(fontsize=7)
+    rss = result.get("peak_rss_mb")
+    if rss:
+        ax = axes[1, 2]
+        rows = [r for r in rss["rows"] if r.get("peak_rss_mb") is not None]
+        labels = [f"{r['method']} {r['precision'][5:]}\n{r['size']}" for r in rows]
+        ax.barh(range(len(rows)), [r["peak_rss_mb"] for r in rows], color="tab:blue")
+        ax.set_yticks(range(len(rows)), labels, fontsize=6)
+        ax.axvline(4096, color="r", ls="--", lw=1, label="4 GB")
+        ax.set(xlabel="peak RSS (MB)", title="peak memory per configuration (1 frame)")
+        ax.legend(fontsize=7)
+    return save(fig, path)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

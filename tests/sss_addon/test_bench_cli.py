@@ -1,0 +1,286 @@
+"""``cvsss bench`` and the study subcommands: flags, files, plots, printed tables, memory.
+
+The parser is built the way ``sss_addon.cli.main`` builds it (``add_parser`` /
+``add_parsers`` on the ``cvsss`` subparsers); the measuring functions behind
+them are tested in tests/core/test_bench.py and tests/core/test_studies.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cvsss.core.eval import bench as core_bench
+from cvsss.core.eval import quality
+from cvsss.core.mc.history import History
+from cvsss.core.studies import cv1d, fig2
+from cvsss.core.synthetic import scene_frame
+from cvsss.sss_addon.cli import bench, studies
+from cvsss.sss_addon.cli.params import UserError
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cvsss")
+    sub = parser.add_subparsers(dest="command", required=True)
+    bench.add_parser(sub)
+    studies.add_parsers(sub)
+    return parser
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    return _parser().parse_args(list(argv))
+
+
+def _is_png(path) -> bool:
+    return path.read_bytes()[: len(PNG)] == PNG and path.stat().st_size > 1000
+
+
+# -- bench: flags ------------------------------------------------------------------------
+def test_bench_flags_select_the_configuration():
+    args = _args("bench", "--quick", "--sections", "pareto, cost", "--no-plots")
+    cfg = bench.config_from_args(args)
+    assert cfg.sections == ("pareto", "cost")
+    assert cfg.cost_sizes == core_bench.QUICK.cost_sizes
+    assert args.no_plots and not args.write_calibration and args.rss_worker is None
+    full = bench.config_from_args(_args("bench"))
+    assert full == core_bench.BenchConfig()
+
+
+@pytest.mark.parametrize("sections", ["speed", "cost,speed", ","])
+def test_bench_refuses_unknown_sections(sections):
+    with pytest.raises(ValueError, match="--sections must be a subset of cost,fit"):
+        bench.run(_args("bench", "--sections", sections))
+
+
+def test_bench_help_hides_the_worker_flag(capsys):
+    with pytest.raises(SystemExit):
+        _args("bench", "--help")
+    out = capsys.readouterr().out
+    assert "--write-calibration" in out and "--rss-worker" not in out
+
+
+# -- bench: memory -----------------------------------------------------------------------
+def test_rss_worker_reports_inputs_and_history_exactly():
+    spec = {"size": [32, 18], "method": "as_ocv", "precision": "float16", "frames": 2}
+    spec.update(scene="flash", seed=0)
+    res = bench.rss_worker(spec)
+    frame = scene_frame("flash", 2, 32, 18)
+    passes = (frame.lighting, frame.albedo, frame.combined, frame.depth, frame.material)
+    assert res["input_mb"] == sum(a.nbytes for a in passes) / 2**20
+    assert res["history_mb"] == History.empty((18, 32), "float16").nbytes() / 2**20
+    assert 10 < res["peak_rss_mb"] < 4096
+    if res["source"] == "VmHWM":
+        assert res["peak_rss_mb"] >= res["baseline_mb"]
+
+
+def test_rss_worker_runs_as_a_module():
+    spec = {"size": [16, 9], "method": "fixed", "precision": "float32", "frames": 1}
+    spec.update(scene="flash", seed=0)
+    proc = subprocess.run(
+        [sys.executable, "-m", "cvsss.sss_addon.cli.bench", "--rss-worker", json.dumps(spec)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert res["history_mb"] == 0.0  # fixed keeps no history
+    assert 10 < res["peak_rss_mb"] < 4096
+
+
+# -- bench: the whole quick run ----------------------------------------------------------
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    pytest.importorskip("matplotlib")
+    tmp = tmp_path_factory.mktemp("bench")
+    shipped = tmp / "shipped" / "quality_calibration.json"
+    shipped.parent.mkdir()
+    shutil.copy(quality.CALIBRATION_PATH, shipped)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(quality, "CALIBRATION_PATH", shipped)
+        lines: list[str] = []
+        result = bench.run_bench(
+            tmp / "out", core_bench.QUICK, write_calibration=True, log=lines.append
+        )
+    return tmp / "out", shipped, result, lines
+
+
+def test_quick_run_writes_bench_json(quick_run):
+    out, _, result, _ = quick_run
+    text = (out / "bench.json").read_text(encoding="utf-8")
+    assert text == core_bench.to_json(result)
+    data = json.loads(text)
+    assert list(data) == [
+        "version",
+        "command",
+        "config",
+        "environment",
+        "section_s",
+        "cpu_share",
+        "cost",
+        "samples_time_r2",
+        "coverage_scaling",
+        "resolution_scaling",
+        "peak_rss_mb",
+        "pareto",
+        "ns_per_sample",
+        "gather_ns_per_sample",
+        "overhead_fraction",
+        "wall_s",
+        "targets",
+        "plots",
+    ]
+    assert data["command"] == bench.REGENERATE
+    assert data["config"] == json.loads(json.dumps(core_bench.QUICK.to_dict()))
+    assert data["environment"]["cpus"] == data["targets"]["bench_wall_s"]["cpus"]
+    assert set(data["targets"]) == {
+        "ns_per_sample_vs_gather",
+        "overhead_fraction_as_ocv",
+        "samples_time_r2",
+        "peak_rss_mb_largest",
+        "as_ccv_time_vs_fixed_at_equal_psnr",
+        "quality_45db_error_db",
+        "bench_wall_s",
+    }
+    assert sorted(p.name for p in out.iterdir()) == [
+        "bench.json",
+        "pareto.png",
+        "quality.png",
+        "quality_calibration.json",
+        "scaling.png",
+    ]
+
+
+def test_quick_run_measures_memory_in_subprocesses(quick_run):
+    rss = quick_run[2]["peak_rss_mb"]
+    assert [(r["method"], r["precision"]) for r in rss["rows"]] == [
+        ("as_ocv", "float32"),
+        ("as_ocv", "float16"),
+    ]
+    for row in rss["rows"]:
+        assert "error" not in row, row
+        assert 10 < row["peak_rss_mb"] < 4096
+    # The float16 history holds half the bytes of the float32 one.
+    f32, f16 = rss["rows"]
+    assert f16["history_mb"] == pytest.approx(f32["history_mb"] / 2)
+    assert rss["second_frame_check"]["two_frames_mb"] is not None
+
+
+def test_quick_run_writes_the_calibration_and_plots(quick_run):
+    out, shipped, result, _ = quick_run
+    cal = quality.load_calibration(out / "quality_calibration.json")
+    assert {f.fixed["beta_min"] for f in cal.methods["as_ccv"]} == {8, 4}
+    assert shipped.read_text(encoding="utf-8") == (out / "quality_calibration.json").read_text(
+        encoding="utf-8"
+    )
+    assert result["plots"] == ["pareto.png", "quality.png", "scaling.png"]
+    assert all(_is_png(out / name) for name in result["plots"])
+
+
+def test_quick_run_logs_progress_and_the_targets(quick_run):
+    _, _, result, lines = quick_run
+    assert any(line.startswith("[") and "pareto fixed N=1" in line for line in lines)
+    summary = lines[-2]
+    assert summary == bench.format_summary(result)
+    for name in result["targets"]:
+        assert f"{name} " in summary
+    assert summary.count("yes") == sum(t["met"] for t in result["targets"].values())
+    assert lines[-1].startswith("wrote ") and lines[-1].endswith(" s")
+
+
+# -- studies -------------------------------------------------------------------------------
+def test_cv1d_writes_summary_curves_and_figure(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    assert studies.run(_args("cv1d", "--out", str(tmp_path), "--seeds", "20")) == 0
+    expected = cv1d.run(seeds=20)
+    summary = json.loads((tmp_path / "cv1d.json").read_text())
+    assert summary == json.loads(json.dumps({k: v for k, v in expected.items() if k != "curves"}))
+    curves = json.loads((tmp_path / "cv1d_curves.json").read_text())
+    assert curves == json.loads(json.dumps(expected["curves"]))
+    assert _is_png(tmp_path / "cv1d.png")
+    assert capsys.readouterr().out == (
+        cv1d.format_table(expected)
+        + f"\n\nwrote {tmp_path / 'cv1d.json'}, cv1d_curves.json, cv1d.png\n"
+    )
+
+
+def test_fig2_writes_summary_curves_and_figure(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    assert studies.run(_args("fig2", "--out", str(tmp_path), "--seeds", "1", "--seed", "3")) == 0
+    summary = json.loads((tmp_path / "fig2.json").read_text())
+    assert summary["settings"]["seeds"] == 1 and summary["settings"]["seed"] == 3
+    assert summary["increase_as"] == pytest.approx(fig2.run(seeds=1, seed=3)["increase_as"])
+    assert _is_png(tmp_path / "fig2.png")
+    assert "AS+OCV" in capsys.readouterr().out
+
+
+def test_fp16_records_a_command_that_reproduces_it(tmp_path, capsys):
+    argv = ["fp16", "--out", str(tmp_path), "--frames", "4", "--res", "24x16"]
+    argv += ["--methods", "as_ocv,as", "--long-frames", "3"]
+    assert studies.run(_args(*argv)) == 0
+    data = json.loads((tmp_path / "fp16.json").read_text())
+    assert data["frames"] == 4 and (data["width"], data["height"]) == (24, 16)
+    assert set(data["drift"]) == {"as_ocv", "as"}
+    assert [r["frame"] for r in data["long_run"]] == [3]
+    command = data["command"].split()
+    assert command[0] == "cvsss"
+    again, first = _args(*command[1:]), _args(*argv)
+    assert vars(again) == vars(first)
+    assert "float16 vs float32" in capsys.readouterr().out
+
+
+def test_separable_kernels_writes_json_and_markdown(tmp_path, capsys):
+    argv = ["separable-kernels", "--out", str(tmp_path), "--res", "24x14", "--frames", "1"]
+    assert studies.run(_args(*argv, "--reference-spp", "8", "--no-presets")) == 0
+    data = json.loads((tmp_path / "separable_kernels.json").read_text())
+    assert data["resolution"] == [24, 14] and data["preset_errors"] == {}
+    assert data["machine"]
+    table = (tmp_path / "separable_kernels.md").read_text()
+    out = capsys.readouterr().out
+    assert out.startswith(table) and "wrote " in out
+
+
+def test_study_defaults_match_the_old_commands():
+    assert _args("cv1d").seeds == 1000 and str(_args("cv1d").out) == "out"
+    assert _args("fig2").seeds == 8
+    fp = _args("fp16")
+    assert (fp.frames, fp.res, fp.long_frames, fp.methods) == (
+        300,
+        (96, 54),
+        6000,
+        "as,as_ocv,as_ccv",
+    )
+    sk = _args("separable-kernels")
+    assert (sk.res, sk.frames, sk.gaussians, sk.reference_spp) == ((640, 360), 3, 4, 256)
+    assert str(sk.out) == "out/separable_kernels"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["cv1d", "--seeds", "1"], "seeds must be an integer >= 2"),
+        (["fp16", "--methods", "fixed"], "--methods must be a subset of as, as_ocv, as_ccv"),
+        (["fp16", "--frames", "1", "--long-frames", "0"], "frames must be >= 2"),
+    ],
+)
+def test_studies_refuse_bad_arguments_as_user_errors(tmp_path, argv, message):
+    with pytest.raises(UserError, match=message):
+        studies.run(_args(*argv, "--out", str(tmp_path)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_resolution_flag_is_checked_by_the_parser(capsys):
+    with pytest.raises(SystemExit) as exc:
+        _args("separable-kernels", "--res", "640by360")
+    assert exc.value.code == 2
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
+    assert np.array_equal(_args("fp16", "--res", "8X4").res, (8, 4))
