@@ -380,11 +380,12 @@ class SSSParams(_Params):
         advanced=True,
     )
     distance: str = param(
-        "planar",
+        "surface",
         label="Sample Distance",
         help="Distance at which a sample's profile weight is taken: on the depth-buffer "
-        "surface, with the area Jacobian of the screen to surface mapping (surface), or the "
-        "sampled planar radius (planar, the paper's)",
+        "surface, with the area Jacobian of the screen to surface mapping (surface, default: "
+        "closer to Cycles at silhouettes and on tilted surfaces), or the sampled planar radius "
+        "(planar, the paper's)",
         choices=DISTANCES,
         advanced=True,
     )
