@@ -223,7 +223,9 @@ class SSSParams(_Params):
     eps_u, eps_alpha, kappa : ε_u (P Eq. 18), ε_α (P Sec. 6.2.3), κ (P Eq. 8).
     beta_min, beta_max : the β clamp of the adaptive count.
     n_init : mean count assumed without valid history (D, slides 80–82);
-        ``None`` means β_min. Not a user setting.
+        ``None`` means β_max (a cold start samples generously: measured
+        against Cycles, a first frame at β_min was worse than no subsurface
+        at all; see README *Defaults*). Not a user setting.
     chunk_samples : upper bound of samples per vectorised batch (~60 bytes
         each). Not a user setting.
     """
@@ -311,7 +313,7 @@ class SSSParams(_Params):
     )
     n_init: int | None = param(
         None,
-        help="Mean sample count assumed without valid history (None: β min)",
+        help="Mean sample count assumed without valid history (None: β max)",
         unit="samples",
         lo=1,
         hi=MAX_SPP,
@@ -420,8 +422,8 @@ class SSSParams(_Params):
 
     @property
     def initial_count(self) -> int:
-        """n_init, the mean count assumed without history (default β_min)."""
-        return self.beta_min if self.n_init is None else self.n_init
+        """n_init, the mean count assumed without history (default β_max: a warm start)."""
+        return self.beta_max if self.n_init is None else self.n_init
 
 
 @dataclass(frozen=True)

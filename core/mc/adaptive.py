@@ -11,7 +11,8 @@ mean of the counts. The count for the next frame aims the tracked variance at
 
 Where there is no valid history (first frame, disocclusion, a pixel that took
 no samples) the defense slides' rule applies (D, slides 80–82): assume
-σ² = σ0² and m̄ = n_init for the count, then take the new value with weight
+σ² = σ0² and m̄ = n_init (default β_max, a generous cold start; the slides use
+β_min) for the count, then take the new value with weight
 1 (μ = S) and keep σ² = σ0² until a second observation gives a deviation.
 """
 

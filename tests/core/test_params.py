@@ -9,7 +9,9 @@ def test_defaults_are_the_papers():
     p = SSSParams()
     for name, value in PAPER_DEFAULTS.items():
         assert getattr(p, name) == value
-    assert p.initial_count == p.beta_min
+    # A cold history samples at β_max (not the paper's β_min): measured against Cycles.
+    assert p.initial_count == p.beta_max
+    assert SSSParams(n_init=12).initial_count == 12
 
 
 @pytest.mark.parametrize(
