@@ -22,6 +22,7 @@ depth, which EEVEE writes as the clip end, becomes 1e10 as in Cycles.
 from __future__ import annotations
 
 import contextlib
+import json
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -381,6 +382,15 @@ class PassSetup(SceneSetup):
 def pass_path(passes_dir: Path, frame: int) -> Path:
     """``<passes_dir>/####.exr`` for ``frame``."""
     return Path(passes_dir) / f"{frame:04d}.exr"
+
+
+def read_record(path: Path) -> dict | None:
+    """The JSON object at ``path``, or None when it is missing or unreadable."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
 
 
 def frame_done(passes_dir: Path, frame: int) -> bool:
