@@ -78,6 +78,9 @@ class SSS_PT_render(Panel):
         col = layout.column()
         col.prop(s, "engine")
         col.prop(s, "use_normal_pass")
+        row = col.row()
+        row.prop(s, "use_denoise_passes")
+        row.active = s.engine == "CYCLES"
         col.prop(s, "use_ground_truth")
         sub = col.column(align=True)
         sub.active = s.use_ground_truth

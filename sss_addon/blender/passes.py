@@ -295,6 +295,9 @@ class PassSetup(SceneSetup):
     engine : {"CYCLES", "EEVEE"}
     normal : bool
         Also enable the Normal pass.
+    denoise : bool
+        Also write Cycles' Denoising Albedo and Normal passes (the guides of
+        :func:`.denoise.denoise_pass_file`, which removes them again).
     """
 
     def __init__(
@@ -304,11 +307,13 @@ class PassSetup(SceneSetup):
         view_layer,
         engine: str = "CYCLES",
         normal: bool = False,
+        denoise: bool = False,
     ) -> None:
         super().__init__(scene, view_layer)
         self.materials = list(materials)
         self.engine = engine_identifier(scene, engine)
         self.normal = normal
+        self.denoise = denoise
         self._pass_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
         self._aov = None
@@ -335,6 +340,8 @@ class PassSetup(SceneSetup):
         self._only_layer(
             lambda ident: ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
         )
+        if self.denoise:
+            self.view_layer.cycles.denoising_store_passes = True
         for material in bpy.data.materials:
             if material.pass_index != 0 and material.is_editable:
                 material.pass_index = 0
@@ -393,10 +400,17 @@ def read_record(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
-def frame_done(passes_dir: Path, frame: int) -> bool:
-    """The pass EXR and its sidecar of ``frame`` both exist."""
+def frame_done(passes_dir: Path, frame: int, denoised: bool = False) -> bool:
+    """The pass EXR and its sidecar of ``frame`` both exist, made with ``denoised`` as asked.
+
+    A sidecar without ``"denoised"`` records undenoised passes; an unreadable
+    sidecar counts as missing (the frame is rendered again).
+    """
     path = pass_path(passes_dir, frame)
-    return path.is_file() and path.with_suffix(".json").is_file()
+    if not (path.is_file() and path.with_suffix(".json").is_file()):
+        return False
+    record = read_record(path.with_suffix(".json"))
+    return record is not None and bool(record.get("denoised", False)) == denoised
 
 
 def _render_still(scene) -> None:
@@ -433,11 +447,17 @@ def render_frame(
     passes_dir: Path,
     specs: list[MaterialSpec],
     view_layer,
+    denoise: bool = False,
 ) -> Path:
     """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
 
     The sidecar is written first and the EXR rendered to a temporary name
-    that is renamed into place, so a pass file is complete or absent.
+    that is renamed into place, so a pass file is complete or absent. An
+    older EXR of the frame is removed before its sidecar is replaced, so a
+    failed render never leaves a file the new sidecar does not describe.
+    With ``denoise`` the passes the post reads are denoised
+    (:func:`.denoise.denoise_pass_file`) before the rename, and the sidecar
+    records ``"denoised": true``.
 
     Returns
     -------
@@ -453,11 +473,19 @@ def render_frame(
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
+    if denoise:
+        sidecar["denoised"] = True
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
     write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
 
     def finish(temp: Path) -> None:
         if scene.render.engine != "CYCLES":
             aov_to_material_index(temp, view_layer.name, sidecar["camera"]["clip_end"])
+        if denoise:
+            from .denoise import denoise_pass_file
+
+            denoise_pass_file(temp, view_layer.name)
 
     render_to(scene, path, finish)
     return path

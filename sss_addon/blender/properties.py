@@ -256,6 +256,15 @@ class SSSSettings(PropertyGroup):
         description="Also render the Normal pass (for bilateral weights; not needed by default)",
         default=False,
     )
+    use_denoise_passes: BoolProperty(
+        name="Denoise Passes",
+        description=(
+            "Denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided by "
+            "Cycles' Denoising Albedo and Normal) before the post-process reads them. Cycles "
+            "passes only; pass files made with the other setting are rendered again"
+        ),
+        default=False,
+    )
     use_ground_truth: BoolProperty(
         name="Ground Truth",
         description=(

@@ -21,11 +21,13 @@ The reference (1024 spp) costs as much as all other methods together: with
 (the first, the (k+1)-th, …; it keeps no history, so any subset is exact)
 and PSNR is reported on those frames.
 
-``ground_truth`` renders the same frames with Cycles' own subsurface
-(every ``ground_truth_every``-th frame, the first included) and hands them
-to the post, which fills the ground-truth columns of metrics.csv. It is
-part of the run's identity, so switching it starts the post-process over
-(the passes are kept).
+Two options change what the post reads. ``denoise_passes`` denoises the
+passes with Blender's OIDN (denoise.py); pass frames made with the other
+setting are rendered again, never reused. ``ground_truth`` renders the same
+frames with Cycles' own subsurface (every ``ground_truth_every``-th frame,
+the first included) and hands them to the post, which fills the
+ground-truth columns of metrics.csv. Both are part of the run's identity,
+so switching either starts the post-process over (the passes are kept).
 """
 
 from __future__ import annotations
@@ -92,6 +94,7 @@ class Job:
     display: str = ""
     log: Log = None
     reference_every: int = 1
+    denoise_passes: bool = False
     ground_truth: bool = False
     ground_truth_samples: int = gt.DEFAULT_SAMPLES
     ground_truth_every: int = 1
@@ -214,6 +217,7 @@ def prepare(
     context=None,
     log: Log = None,
     reference_every: int = 1,
+    denoise_passes: bool = False,
     ground_truth: bool = False,
     ground_truth_samples: int = gt.DEFAULT_SAMPLES,
     ground_truth_every: int = 1,
@@ -222,7 +226,8 @@ def prepare(
     """Check everything a run needs before the scene is touched.
 
     ``reference_every = k`` computes the reference on every k-th frame only.
-    ``ground_truth`` renders every ``ground_truth_every``-th frame with Cycles' own subsurface
+    ``denoise_passes`` denoises the passes (Cycles only). ``ground_truth``
+    renders every ``ground_truth_every``-th frame with Cycles' own subsurface
     (``ground_truth_method`` BURLEY or RANDOM_WALK) at ``ground_truth_samples``
     samples per pixel.
 
@@ -231,7 +236,7 @@ def prepare(
     RenderError
         Bad frame range or method, no camera, no participating material,
         a material without a Principled BSDF or override, unwritable output,
-        a bad ground-truth setting.
+        a bad ground-truth setting, denoising with EEVEE.
     """
     frame_list = _check_frames(frames)
     names = _check_methods(methods)
@@ -243,6 +248,12 @@ def prepare(
         raise RenderError(
             f"ground_truth_method must be one of {', '.join(gt.METHODS)}, "
             f"got {ground_truth_method!r}"
+        )
+    if denoise_passes and engine != "CYCLES":
+        raise RenderError(
+            f"denoising the passes needs Cycles: {engine} writes no Denoising Albedo and "
+            "Normal passes to guide the denoiser (render the passes with Cycles, or turn "
+            "denoising off)"
         )
     display = next((n for n in names if n != "reference"), names[0])
     if reference and "reference" not in names:
@@ -289,6 +300,7 @@ def prepare(
         display=display,
         log=log,
         reference_every=reference_every,
+        denoise_passes=bool(denoise_passes),
         ground_truth=bool(ground_truth),
         ground_truth_samples=ground_truth_samples,
         ground_truth_every=ground_truth_every,
@@ -301,7 +313,9 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
     """Render (or reuse) the pass file of each frame; one Step per frame.
 
     ``needed(frame)`` false skips rendering a missing pass file (the frame's
-    results are already done). On the frames the job's ground truth is due it is rendered (or reused) after the passes. The
+    results are already done). A pass file made with the other
+    ``denoise_passes`` setting is rendered again. On the frames the job's
+    ground truth is due it is rendered (or reused) after the passes. The
     scene is configured and restored around each render, and the current
     frame is restored when the generator ends, fails or is closed.
     """
@@ -314,12 +328,24 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             start = time.perf_counter()
             path = pass_path(job.passes_dir, frame)
             wanted = needed is None or needed(frame)
-            rendered = wanted and (job.overwrite or not frame_done(job.passes_dir, frame))
+            rendered = wanted and (
+                job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes)
+            )
+            # Made with the other denoise setting: said, never reused silently.
+            redo = (
+                rendered
+                and not job.overwrite
+                and frame_done(job.passes_dir, frame, not job.denoise_passes)
+            )
             if rendered:
                 scene.frame_set(frame)
                 specs = sss_materials.material_specs(job.materials, scene)
-                with PassSetup(scene, job.materials, job.view_layer, job.engine, job.normal):
-                    render_frame(scene, frame, job.passes_dir, specs, job.view_layer)
+                with PassSetup(
+                    scene, job.materials, job.view_layer, job.engine, job.normal, job.denoise_passes
+                ):
+                    render_frame(
+                        scene, frame, job.passes_dir, specs, job.view_layer, job.denoise_passes
+                    )
             step = Step(index, total, frame, path, rendered, 0.0)
             if wanted and job.ground_truth_due(index - 1):
                 step.ground_truth = gt.ground_truth_path(job.ground_truth_dir, frame)
@@ -339,6 +365,9 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             step.seconds = time.perf_counter() - start
             if job.log:
                 what = "rendered" if rendered else "exists, reused"
+                if redo:
+                    was = "on" if not job.denoise_passes else "off"
+                    what = f"rendered again (the existing ones were made with denoising {was})"
                 if step.ground_truth is not None:
                     what += ", ground truth " + (
                         "rendered" if step.ground_truth_rendered else "exists, reused"
@@ -354,12 +383,14 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
 
 
 def run_source(job: Job) -> str:
-    """Identity of the post's input: the pass folder and the ground truth.
+    """Identity of the post's input: the pass folder, how the passes were made, the ground truth.
 
     Part of the run's checkpoint signature, so a run resumes only on the
-    same input (plain pass folder path without ground truth).
+    same input (plain pass folder path without denoising or ground truth).
     """
     source = os.fspath(job.passes_dir.resolve())
+    if job.denoise_passes:
+        source += " (denoised)"
     if job.ground_truth:
         source += (
             f"; ground truth {os.fspath(job.ground_truth_dir.resolve())} "
@@ -459,6 +490,7 @@ def job_from_scene(
     log: Log = None,
     reference_every: int = 1,
     options: MethodOptions | Mapping | None = None,
+    denoise_passes: bool | None = None,
     ground_truth: bool | None = None,
     ground_truth_samples: int | None = None,
     ground_truth_every: int | None = None,
@@ -501,6 +533,7 @@ def job_from_scene(
         context=context,
         log=log,
         reference_every=reference_every,
+        denoise_passes=_given(denoise_passes, settings.use_denoise_passes),
         ground_truth=_given(ground_truth, settings.use_ground_truth),
         ground_truth_samples=_given(ground_truth_samples, settings.ground_truth_samples),
         ground_truth_every=_given(ground_truth_every, settings.ground_truth_every),
@@ -540,6 +573,7 @@ def render_sequence(
     images: bool = False,
     reference_every: int = 1,
     options: MethodOptions | Mapping | None = None,
+    denoise_passes: bool | None = None,
     ground_truth: bool | None = None,
     ground_truth_samples: int | None = None,
     ground_truth_every: int | None = None,
@@ -574,6 +608,9 @@ def render_sequence(
     reference_every : int
         Compute the reference (and PSNR) on every k-th frame of the range only.
     options : MethodOptions, or a mapping of overrides (see :func:`job_from_scene`)
+    denoise_passes : bool, optional
+        Denoise the passes with Blender's OIDN (Cycles passes only); defaults
+        to ``sss_settings.use_denoise_passes``.
     ground_truth : bool, optional
         Also render the frames with Cycles' own subsurface on (always Cycles)
         into ``<out>/ground_truth`` and fill the ground-truth columns;
@@ -624,6 +661,7 @@ def render_sequence(
             log=log,
             reference_every=reference_every,
             options=options,
+            denoise_passes=denoise_passes,
             ground_truth=ground_truth,
             ground_truth_samples=ground_truth_samples,
             ground_truth_every=ground_truth_every,

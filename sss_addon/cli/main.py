@@ -226,6 +226,15 @@ def build_parser() -> argparse.ArgumentParser:
         "with the reference: compute it (and PSNR) on every K-th frame only "
         "(default 1: every frame)",
     )
+    rnd.add_argument(
+        "--denoise-passes",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided "
+        "by Cycles' Denoising Albedo and Normal) before the post reads them; Cycles passes "
+        "only; pass files made with the other setting are rendered again "
+        "(default: the scene's cvsss setting)",
+    )
     truth = rnd.add_argument_group("ground truth (Cycles with its own subsurface on)")
     truth.add_argument(
         "--ground-truth",
@@ -363,6 +372,11 @@ def _render(args: argparse.Namespace) -> int:
         _check_at_least_one("--ground-truth-every", args.ground_truth_every)
     if args.ground_truth_spp is not None and not 1 <= args.ground_truth_spp <= 2**24:
         raise UserError(f"--ground-truth-spp must be in [1, {2**24}], got {args.ground_truth_spp}")
+    if args.denoise_passes and args.engine == "EEVEE":
+        raise UserError(
+            "--denoise-passes needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
+            "passes to guide the denoiser"
+        )
     if args.blend is not None and not args.blend.is_file():
         raise UserError(f"{args.blend}: no such .blend file")
     try:
@@ -389,6 +403,7 @@ def _render(args: argparse.Namespace) -> int:
             reference=args.reference,
             reference_every=args.reference_every,
             options=option_overrides,
+            denoise_passes=args.denoise_passes,
             ground_truth=args.ground_truth,
             ground_truth_samples=args.ground_truth_spp,
             ground_truth_every=args.ground_truth_every,
