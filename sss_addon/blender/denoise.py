@@ -112,12 +112,12 @@ def _build_tree(tree, image, layer: str, passes: list[str], folder: Path) -> Non
         tree.links.new(node.outputs["Image"], out.inputs[name])
 
 
-def _passes_in(path: Path, layer: str) -> set[str]:
-    return {
-        part.name()[len(layer) + 1 :]
-        for part in OpenEXR.File(str(path), header_only=True).parts
-        if part.name().startswith(layer + ".")
-    }
+def _layout(path: Path, layer: str) -> tuple[set[str], tuple[int, int]]:
+    """Pass names of ``layer`` in the EXR, and its (width, height) in pixels."""
+    parts = OpenEXR.File(str(path), header_only=True).parts
+    low, high = parts[0].header["dataWindow"]
+    names = {p.name()[len(layer) + 1 :] for p in parts if p.name().startswith(layer + ".")}
+    return names, (int(high[0] - low[0] + 1), int(high[1] - low[1] + 1))
 
 
 def denoise_pass_file(path: str | Path, layer: str) -> None:
@@ -139,7 +139,7 @@ def denoise_pass_file(path: str | Path, layer: str) -> None:
         The guiding passes are missing, or the compositor wrote no file.
     """
     path = Path(path)
-    present = _passes_in(path, layer)
+    present, (width, height) = _layout(path, layer)
     missing = [name for name in ("Denoising Albedo", "Denoising Normal") if name not in present]
     if missing:
         raise OutputError(path, f"no {' or '.join(missing)} pass to guide the denoiser")
@@ -150,8 +150,7 @@ def denoise_pass_file(path: str | Path, layer: str) -> None:
         _temporary(bpy.data.scenes, "cvsss denoise") as scene,
         _temporary(bpy.data.node_groups, "cvsss denoise", "CompositorNodeTree") as tree,
     ):
-        width, height = image.size
-        r = scene.render
+        r = scene.render  # the image's size (not known to Blender before it is read)
         r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
         r.use_compositing = True
         r.use_sequencer = False
