@@ -78,6 +78,15 @@ class SSS_PT_render(Panel):
         col = layout.column()
         col.prop(s, "engine")
         col.prop(s, "use_normal_pass")
+        row = col.row()
+        row.prop(s, "use_denoise_passes")
+        row.active = s.engine == "CYCLES"
+        col.prop(s, "use_ground_truth")
+        sub = col.column(align=True)
+        sub.active = s.use_ground_truth
+        sub.prop(s, "ground_truth_samples")
+        sub.prop(s, "ground_truth_every")
+        sub.prop(s, "ground_truth_method")
         col.prop(s, "output_dir")
         col.prop(s, "overwrite")
         col.prop(s, "use_frame_range")
@@ -99,6 +108,8 @@ class SSS_PT_render(Panel):
             box.label(text=f"Mean spp: {s.last_spp:.2f}")
             box.label(text=f"Pass time: {s.last_pass_ms:.2f} ms")
             box.label(text=f"PSNR: {s.last_psnr:.2f} dB" if s.last_psnr > 0 else "PSNR: –")
+            if s.last_psnr_gt > 0:
+                box.label(text=f"PSNR vs Cycles: {s.last_psnr_gt:.2f} dB")
         else:
             box.label(text="No frame processed yet")
 

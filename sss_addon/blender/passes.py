@@ -22,8 +22,9 @@ depth, which EEVEE writes as the clip end, becomes 1e10 as in Cycles.
 from __future__ import annotations
 
 import contextlib
+import json
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import bpy
@@ -187,7 +188,102 @@ NEEDED_PASSES = (
 )
 
 
-class PassSetup(contextlib.AbstractContextManager):
+class SceneSetup(contextlib.AbstractContextManager):
+    """Snapshot ``scene``'s render settings and view layers, change them, restore on exit.
+
+    The one snapshot of what a render changes: ``scene.render`` (with its
+    image settings), the Cycles and EEVEE scene settings and every view layer
+    (with its Cycles settings) are recorded with :func:`rna_values` on entry
+    and put back with :func:`restore_rna` on exit, also on error and on
+    cancel. Subclasses make their changes in :meth:`_apply` and extend
+    :meth:`restore` for what they change beyond these structs.
+
+    Parameters
+    ----------
+    scene : bpy.types.Scene
+    view_layer : bpy.types.ViewLayer
+        The only view layer rendered.
+    """
+
+    def __init__(self, scene, view_layer) -> None:
+        self.scene = scene
+        self.view_layer = view_layer
+        self._saved: list[tuple[object, dict]] = []
+
+    def _structs(self) -> Iterator[tuple[object, tuple[str, ...]]]:
+        scene = self.scene
+        yield scene.render, ("image_settings",)
+        for name in ("cycles", "eevee"):
+            if getattr(scene, name, None) is not None:
+                yield getattr(scene, name), ()
+        for layer in scene.view_layers:
+            yield layer, ()
+            if getattr(layer, "cycles", None) is not None:
+                yield layer.cycles, ()
+
+    def __enter__(self):
+        try:
+            self._saved = [(s, rna_values(s, nested)) for s, nested in self._structs()]
+            self._apply()
+        except BaseException:
+            self.restore()
+            raise
+        return self
+
+    def _apply(self) -> None:
+        raise NotImplementedError
+
+    def _output_exr(self) -> None:
+        """Whole frame, no compositing or sequencer, 32-bit multilayer EXR."""
+        r = self.scene.render
+        r.use_compositing = False
+        r.use_sequencer = False
+        r.use_border = False  # the post-process needs the whole frame
+        r.use_file_extension = True
+        r.use_single_layer = False
+        s = r.image_settings
+        if hasattr(s, "media_type"):
+            s.media_type = "MULTI_LAYER_IMAGE"
+        s.file_format = "OPEN_EXR_MULTILAYER"
+        s.color_depth = "32"
+        s.exr_codec = "ZIP"
+
+    def _only_layer(self, wanted: Callable[[str], bool]) -> None:
+        """Render only the view layer, with the passes ``wanted(identifier)`` accepts.
+
+        Every Cycles layer flag (passes, denoising, denoising data) is switched off.
+        """
+        layer = self.view_layer
+        for other in self.scene.view_layers:
+            other.use = other == layer
+        for prop in layer.bl_rna.properties:
+            ident = prop.identifier
+            if ident.startswith("use_pass_") and not prop.is_readonly:
+                setattr(layer, ident, wanted(ident))
+        cycles_layer = getattr(layer, "cycles", None)
+        if cycles_layer is not None:
+            for prop in cycles_layer.bl_rna.properties:
+                if (
+                    prop.type == "BOOLEAN"
+                    and not prop.is_readonly
+                    and (
+                        prop.identifier.startswith(("use_pass_", "pass_"))
+                        or prop.identifier in ("use_denoising", "denoising_store_passes")
+                    )
+                ):
+                    setattr(cycles_layer, prop.identifier, False)
+
+    def restore(self) -> None:
+        """Put back every recorded struct (safe to call more than once)."""
+        for struct, values in self._saved:
+            restore_rna(struct, values)
+        self._saved = []
+
+    def __exit__(self, *exc) -> None:
+        self.restore()
+
+
+class PassSetup(SceneSetup):
     """Configure ``scene`` for the pass render of ``materials``; restore on exit.
 
     Parameters
@@ -201,38 +297,34 @@ class PassSetup(contextlib.AbstractContextManager):
     engine : {"CYCLES", "EEVEE"}
     normal : bool
         Also enable the Normal pass.
+    denoise : bool
+        Also write Cycles' Denoising Albedo and Normal passes (the guides of
+        :func:`.denoise.denoise_pass_file`, which removes them again).
     """
 
     def __init__(
-        self, scene, materials, view_layer, engine: str = "CYCLES", normal: bool = False
+        self,
+        scene,
+        materials,
+        view_layer,
+        engine: str = "CYCLES",
+        normal: bool = False,
+        denoise: bool = False,
     ) -> None:
-        self.scene = scene
+        super().__init__(scene, view_layer)
         self.materials = list(materials)
-        self.view_layer = view_layer
         self.engine = engine_identifier(scene, engine)
         self.normal = normal
-        self._saved: list[tuple[object, dict]] = []
+        self.denoise = denoise
         self._pass_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
         self._aov = None
         self._aov_nodes: list[tuple[object, str]] = []
 
-    def _structs(self) -> Iterator[tuple[object, tuple[str, ...]]]:
-        scene = self.scene
-        yield scene.render, ("image_settings",)
-        for name in ("cycles", "eevee"):
-            if getattr(scene, name, None) is not None:
-                yield getattr(scene, name), ()
-        for layer in scene.view_layers:
-            yield layer, ()
-            if getattr(layer, "cycles", None) is not None:
-                yield layer.cycles, ()
-
     def __enter__(self) -> PassSetup:
         try:
-            self._saved = [(s, rna_values(s, nested)) for s, nested in self._structs()]
             self._pass_index = {m.name: m.pass_index for m in bpy.data.materials}
-            self._apply()
+            super().__enter__()
             self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
         except BaseException:
             self.restore()
@@ -240,42 +332,18 @@ class PassSetup(contextlib.AbstractContextManager):
         return self
 
     def _apply(self) -> None:
-        scene, layer = self.scene, self.view_layer
+        scene = self.scene
         r = scene.render
         r.engine = self.engine
         r.use_motion_blur = False  # the Vector pass is not written with motion blur
-        r.use_compositing = False
-        r.use_sequencer = False
-        r.use_border = False  # the post-process needs the whole frame
-        r.use_file_extension = True
-        r.use_single_layer = False
-        s = r.image_settings
-        if hasattr(s, "media_type"):
-            s.media_type = "MULTI_LAYER_IMAGE"
-        s.file_format = "OPEN_EXR_MULTILAYER"
-        s.color_depth = "32"
-        s.exr_codec = "ZIP"
+        self._output_exr()
         if getattr(scene, "cycles", None) is not None:
             scene.cycles.use_denoising = False
-        for other in scene.view_layers:
-            other.use = other == layer
-        for prop in layer.bl_rna.properties:
-            ident = prop.identifier
-            if ident.startswith("use_pass_") and not prop.is_readonly:
-                wanted = ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
-                setattr(layer, ident, wanted)
-        cycles_layer = getattr(layer, "cycles", None)
-        if cycles_layer is not None:
-            for prop in cycles_layer.bl_rna.properties:
-                if (
-                    prop.type == "BOOLEAN"
-                    and not prop.is_readonly
-                    and (
-                        prop.identifier.startswith(("use_pass_", "pass_"))
-                        or prop.identifier in ("use_denoising", "denoising_store_passes")
-                    )
-                ):
-                    setattr(cycles_layer, prop.identifier, False)
+        self._only_layer(
+            lambda ident: ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
+        )
+        if self.denoise:
+            self.view_layer.cycles.denoising_store_passes = True
         for material in bpy.data.materials:
             if material.pass_index != 0 and material.is_editable:
                 material.pass_index = 0
@@ -316,12 +384,7 @@ class PassSetup(contextlib.AbstractContextManager):
             if index is not None and material.pass_index != index:
                 material.pass_index = index
         self._pass_index = {}
-        for struct, values in self._saved:
-            restore_rna(struct, values)
-        self._saved = []
-
-    def __exit__(self, *exc) -> None:
-        self.restore()
+        super().restore()
 
 
 # -- one frame ---------------------------------------------------------------------------------
@@ -330,10 +393,26 @@ def pass_path(passes_dir: Path, frame: int) -> Path:
     return Path(passes_dir) / f"{frame:04d}.exr"
 
 
-def frame_done(passes_dir: Path, frame: int) -> bool:
-    """The pass EXR and its sidecar of ``frame`` both exist."""
+def read_record(path: Path) -> dict | None:
+    """The JSON object at ``path``, or None when it is missing or unreadable."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def frame_done(passes_dir: Path, frame: int, denoised: bool = False) -> bool:
+    """The pass EXR and its sidecar of ``frame`` both exist, made with ``denoised`` as asked.
+
+    A sidecar without ``"denoised"`` records undenoised passes; an unreadable
+    sidecar counts as missing (the frame is rendered again).
+    """
     path = pass_path(passes_dir, frame)
-    return path.is_file() and path.with_suffix(".json").is_file()
+    if not (path.is_file() and path.with_suffix(".json").is_file()):
+        return False
+    record = read_record(path.with_suffix(".json"))
+    return record is not None and bool(record.get("denoised", False)) == denoised
 
 
 def _render_still(scene) -> None:
@@ -343,17 +422,44 @@ def _render_still(scene) -> None:
         raise RenderError(f"rendering frame {scene.frame_current} was cancelled")
 
 
+def render_to(scene, path: Path, finish: Callable[[Path], None] | None = None) -> None:
+    """Render the current frame to ``path`` atomically (scene already set up).
+
+    Blender renders to a temporary name beside ``path`` (keeping the
+    extension, from which it picks the format), ``finish(temp)`` may rewrite
+    that file, and it is renamed into place: ``path`` is complete or absent.
+    """
+    temp = temp_path(path, keep_suffix=True)
+    scene.render.filepath = str(temp)
+    try:
+        _render_still(scene)
+        if not temp.is_file():
+            raise OutputError(temp, "Blender wrote no file (check the output folder)")
+        if finish is not None:
+            finish(temp)
+        commit(temp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            temp.unlink()
+
+
 def render_frame(
     scene,
     frame: int,
     passes_dir: Path,
     specs: list[MaterialSpec],
     view_layer,
+    denoise: bool = False,
 ) -> Path:
     """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
 
     The sidecar is written first and the EXR rendered to a temporary name
-    that is renamed into place, so a pass file is complete or absent.
+    that is renamed into place, so a pass file is complete or absent. An
+    older EXR of the frame is removed before its sidecar is replaced, so a
+    failed render never leaves a file the new sidecar does not describe.
+    With ``denoise`` the passes the post reads are denoised
+    (:func:`.denoise.denoise_pass_file`) before the rename, and the sidecar
+    records ``"denoised": true``.
 
     Returns
     -------
@@ -369,21 +475,40 @@ def render_frame(
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
+    if denoise:
+        sidecar["denoised"] = True
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
     write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
-    # Blender picks the format from the extension: the temporary name keeps it.
-    temp = temp_path(path, keep_suffix=True)
-    scene.render.filepath = str(temp)
-    try:
-        _render_still(scene)
-        if not temp.is_file():
-            raise OutputError(temp, "Blender wrote no file (check the output folder)")
+
+    def finish(temp: Path) -> None:
         if scene.render.engine != "CYCLES":
             aov_to_material_index(temp, view_layer.name, sidecar["camera"]["clip_end"])
-        commit(temp, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            temp.unlink()
+        if denoise:
+            from .denoise import denoise_pass_file
+
+            denoise_pass_file(temp, view_layer.name)
+
+    render_to(scene, path, finish)
     return path
+
+
+def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]) -> None:
+    """Rewrite a multilayer EXR in place, part by part, keeping every header.
+
+    ``edit(part name, {channel: pixels})`` returns the part's new name and
+    channels, or None to drop the part.
+    """
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    skip = ("name", "channels", "chunkCount", "version", "type")
+    parts = []
+    for part in exr.parts:
+        header = {k: v for k, v in part.header.items() if k not in skip}
+        channels = {key: channel.pixels for key, channel in part.channels.items()}
+        edited = edit(part.name(), channels)
+        if edited is not None:
+            parts.append(OpenEXR.Part(header, edited[1], edited[0]))
+    OpenEXR.File(parts).write(str(path))
 
 
 def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
@@ -392,13 +517,9 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
     The value AOV ``<layer>.cvsss_material`` becomes ``<layer>.Material Index``
     (rounded to whole slots) and depths at the clip end become 1e10.
     """
-    exr = OpenEXR.File(str(path), separate_channels=True)
-    skip = ("name", "channels", "chunkCount", "version", "type")
-    parts = []
-    for part in exr.parts:
-        name = part.name()
-        header = {k: v for k, v in part.header.items() if k not in skip}
-        channels = {key: channel.pixels for key, channel in part.channels.items()}
+    names = []
+
+    def edit(name: str, channels: dict) -> tuple[str, dict]:
         if name == f"{layer}.{AOV_NAME}":
             name = f"{layer}.Material Index"
             (values,) = channels.values()
@@ -410,7 +531,9 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
                 )
                 for key, z in channels.items()
             }
-        parts.append(OpenEXR.Part(header, channels, name))
-    if not any(p.name() == f"{layer}.Material Index" for p in parts):
+        names.append(name)
+        return name, channels
+
+    rewrite_exr(path, edit)
+    if f"{layer}.Material Index" not in names:
         raise OutputError(path, f"the engine wrote no '{AOV_NAME}' AOV for the material index")
-    OpenEXR.File(parts).write(str(path))

@@ -49,6 +49,16 @@ ENGINES = (
     ("EEVEE", "EEVEE", "Render the passes with EEVEE (fewer passes: no Diffuse Indirect)"),
 )
 
+#: Cycles subsurface methods of the ground truth (Blender identifiers, sss_addon.blender.ground_truth).
+GROUND_TRUTH_METHODS = (
+    (
+        "BURLEY",
+        "Christensen-Burley",
+        "Cycles' Christensen-Burley subsurface: the profile the post-process samples",
+    ),
+    ("RANDOM_WALK", "Random Walk", "Cycles' random-walk subsurface (volumetric, more accurate)"),
+)
+
 # Blender stores IntProperty as a signed 32-bit integer.
 _INT_MAX = 2**31 - 1
 
@@ -246,6 +256,50 @@ class SSSSettings(PropertyGroup):
         description="Also render the Normal pass (for bilateral weights; not needed by default)",
         default=False,
     )
+    use_denoise_passes: BoolProperty(
+        name="Denoise Passes",
+        description=(
+            "Denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided by "
+            "Cycles' Denoising Albedo and Normal) before the post-process reads them. Cycles "
+            "passes only; pass files made with the other setting are rendered again"
+        ),
+        default=False,
+    )
+    use_ground_truth: BoolProperty(
+        name="Ground Truth",
+        description=(
+            "Also render the frames with Cycles' own subsurface on (always Cycles, also when "
+            "the passes use EEVEE; denoising off, fixed seed) into ground_truth/####.exr, and "
+            "report the PSNR of the result against it"
+        ),
+        default=False,
+    )
+    ground_truth_samples: IntProperty(
+        name="Samples",
+        description="Samples per pixel of the ground-truth render (at least 1024 for a reference)",
+        default=1024,
+        min=1,
+        max=2**24,
+        soft_min=16,
+        soft_max=16384,
+    )
+    ground_truth_every: IntProperty(
+        name="Every",
+        description=(
+            "Render the ground truth on every k-th frame of the range only (the 1st, the "
+            "(k+1)-th, …)"
+        ),
+        default=1,
+        min=1,
+        max=_INT_MAX,
+        soft_max=100,
+    )
+    ground_truth_method: EnumProperty(
+        name="Method",
+        description="Cycles' subsurface method in the ground-truth render",
+        items=GROUND_TRUTH_METHODS,
+        default="BURLEY",
+    )
     output_dir: StringProperty(
         name="Output",
         description=(
@@ -306,6 +360,14 @@ class SSSSettings(PropertyGroup):
     last_psnr: FloatProperty(
         name="PSNR",
         description="Luminance PSNR over SSS pixels against the reference (dB); 0 = not computed",
+        default=0.0,
+    )
+    last_psnr_gt: FloatProperty(
+        name="PSNR vs Cycles",
+        description=(
+            "RGB PSNR over SSS pixels against the Cycles ground truth (dB, display-referred); "
+            "0 = no ground truth on that frame"
+        ),
         default=0.0,
     )
 
@@ -472,14 +534,24 @@ def store_stats(
     spp: float,
     pass_ms: float,
     psnr_db: float | None,
+    psnr_gt_db: float | None = None,
 ) -> None:
-    """Record the statistics of the last processed frame on the settings."""
+    """Record the statistics of the last processed frame on the settings.
+
+    ``psnr_db`` is against the reference, ``psnr_gt_db`` against the Cycles
+    ground truth; None (not computed) is stored as 0.
+    """
     settings.last_frame = int(frame)
     settings.last_method = method
     settings.last_spp = float(spp)
     settings.last_pass_ms = float(pass_ms)
-    settings.last_psnr = 0.0 if psnr_db is None or not math.isfinite(psnr_db) else float(psnr_db)
+    settings.last_psnr = _stat(psnr_db)
+    settings.last_psnr_gt = _stat(psnr_gt_db)
     settings.has_stats = True
+
+
+def _stat(value: float | None) -> float:
+    return 0.0 if value is None or not math.isfinite(value) else float(value)
 
 
 classes = (SSSSettings, SSSMaterialSettings)

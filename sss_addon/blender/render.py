@@ -7,6 +7,7 @@ UI (the modal operators), where closing the generator cancels cleanly.
 Layout under the output folder::
 
     passes/####.exr + ####.json   multilayer pass EXR and its sidecar
+    ground_truth/####.exr + .json Cycles with its own subsurface on (ground_truth.py)
     <method>/####.exr             result layers (core.io.exr.write_result)
     <method>/.checkpoint.npz      history after the last finished frame
     metrics.csv                   one row per frame and method (core.run)
@@ -19,6 +20,14 @@ The reference (1024 spp) costs as much as all other methods together: with
 ``reference_every = k`` it is computed on every k-th frame of the range only
 (the first, the (k+1)-th, …; it keeps no history, so any subset is exact)
 and PSNR is reported on those frames.
+
+Two options change what the post reads. ``denoise_passes`` denoises the
+passes with Blender's OIDN (denoise.py); pass frames made with the other
+setting are rendered again, never reused. ``ground_truth`` renders the same
+frames with Cycles' own subsurface (every ``ground_truth_every``-th frame,
+the first included) and hands them to the post, which fills the
+ground-truth columns of metrics.csv. Both are part of the run's identity,
+so switching either starts the post-process over (the passes are kept).
 """
 
 from __future__ import annotations
@@ -32,11 +41,12 @@ from pathlib import Path
 
 import bpy
 
-from ...core.io.exr import read_frame
+from ...core.io.exr import read_combined, read_frame
 from ...core.methods import METHODS, MethodOptions
 from ...core.params import SSSParams
 from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun, format_clock
+from . import ground_truth as gt
 from . import materials as sss_materials
 from .passes import (
     PassSetup,
@@ -84,10 +94,23 @@ class Job:
     display: str = ""
     log: Log = None
     reference_every: int = 1
+    denoise_passes: bool = False
+    ground_truth: bool = False
+    ground_truth_samples: int = gt.DEFAULT_SAMPLES
+    ground_truth_every: int = 1
+    ground_truth_method: str = "BURLEY"
 
     @property
     def passes_dir(self) -> Path:
         return self.out / "passes"
+
+    @property
+    def ground_truth_dir(self) -> Path:
+        return self.out / "ground_truth"
+
+    def ground_truth_due(self, index: int) -> bool:
+        """Whether the frame at 0-based ``index`` of the range gets a ground truth."""
+        return self.ground_truth and index % self.ground_truth_every == 0
 
 
 @dataclass
@@ -105,6 +128,8 @@ class Step:
     results : dict method -> FrameResult (empty for a pass-only run)
     rows : list of metric rows of this frame
     post_seconds : float, the post-process's share of ``seconds``
+    ground_truth : Path of the ground-truth EXR, or None on frames without one
+    ground_truth_rendered : bool, False when an existing ground truth was reused
     """
 
     index: int
@@ -116,6 +141,8 @@ class Step:
     results: dict[str, FrameResult] = field(default_factory=dict)
     rows: list[dict] = field(default_factory=list)
     post_seconds: float = 0.0
+    ground_truth: Path | None = None
+    ground_truth_rendered: bool = False
 
 
 # -- inputs --------------------------------------------------------------------------------
@@ -152,6 +179,18 @@ def _check_frames(frames: Sequence[int] | tuple[int, int]) -> list[int]:
     return list(range(start, end + 1))
 
 
+def _check_count(name: str, value, hi: int | None = None) -> int:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int)
+        or value < 1
+        or (hi is not None and value > hi)
+    ):
+        bound = f"between 1 and {hi}" if hi is not None else ">= 1"
+        raise RenderError(f"{name} must be an integer {bound}, got {value!r}")
+    return value
+
+
 def _check_methods(methods: Sequence[str]) -> list[str]:
     names = list(dict.fromkeys(methods))
     if not names:
@@ -178,25 +217,44 @@ def prepare(
     context=None,
     log: Log = None,
     reference_every: int = 1,
+    denoise_passes: bool = False,
+    ground_truth: bool = False,
+    ground_truth_samples: int = gt.DEFAULT_SAMPLES,
+    ground_truth_every: int = 1,
+    ground_truth_method: str = "BURLEY",
 ) -> Job:
     """Check everything a run needs before the scene is touched.
 
     ``reference_every = k`` computes the reference on every k-th frame only.
+    ``denoise_passes`` denoises the passes (Cycles only). ``ground_truth``
+    renders every ``ground_truth_every``-th frame with Cycles' own subsurface
+    (``ground_truth_method`` BURLEY or RANDOM_WALK) at ``ground_truth_samples``
+    samples per pixel.
 
     Raises
     ------
     RenderError
         Bad frame range or method, no camera, no participating material,
-        a material without a Principled BSDF or override, unwritable output.
+        a material without a Principled BSDF or override, unwritable output,
+        a bad ground-truth setting, denoising with EEVEE.
     """
     frame_list = _check_frames(frames)
     names = _check_methods(methods)
-    if (
-        isinstance(reference_every, bool)
-        or not isinstance(reference_every, int)
-        or reference_every < 1
-    ):
-        raise RenderError(f"reference_every must be an integer >= 1, got {reference_every!r}")
+    _check_count("reference_every", reference_every)
+    _check_count("ground_truth_every", ground_truth_every)
+    _check_count("ground_truth_samples", ground_truth_samples, gt.MAX_SAMPLES)
+    method = str(ground_truth_method).upper()
+    if method not in gt.METHODS:
+        raise RenderError(
+            f"ground_truth_method must be one of {', '.join(gt.METHODS)}, "
+            f"got {ground_truth_method!r}"
+        )
+    if denoise_passes and engine != "CYCLES":
+        raise RenderError(
+            f"denoising the passes needs Cycles: {engine} writes no Denoising Albedo and "
+            "Normal passes to guide the denoiser (render the passes with Cycles, or turn "
+            "denoising off)"
+        )
     display = next((n for n in names if n != "reference"), names[0])
     if reference and "reference" not in names:
         names.append("reference")
@@ -224,6 +282,8 @@ def prepare(
         raise RenderError(str(exc)) from None
     out = Path(out).expanduser().absolute()
     _check_writable(out / "passes")
+    if ground_truth:
+        _check_writable(out / "ground_truth")
     return Job(
         scene=scene,
         view_layer=view_layer,
@@ -240,6 +300,11 @@ def prepare(
         display=display,
         log=log,
         reference_every=reference_every,
+        denoise_passes=bool(denoise_passes),
+        ground_truth=bool(ground_truth),
+        ground_truth_samples=ground_truth_samples,
+        ground_truth_every=ground_truth_every,
+        ground_truth_method=method,
     )
 
 
@@ -248,9 +313,11 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
     """Render (or reuse) the pass file of each frame; one Step per frame.
 
     ``needed(frame)`` false skips rendering a missing pass file (the frame's
-    results are already done). The scene is configured and restored around
-    each frame, and the current frame is restored when the generator ends,
-    fails or is closed.
+    results are already done). A pass file made with the other
+    ``denoise_passes`` setting is rendered again. On the frames the job's
+    ground truth is due it is rendered (or reused) after the passes. The
+    scene is configured and restored around each render, and the current
+    frame is restored when the generator ends, fails or is closed.
     """
     scene = job.scene
     frame_before, subframe_before = scene.frame_current, scene.frame_subframe
@@ -260,24 +327,77 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
         for index, frame in enumerate(job.frames, 1):
             start = time.perf_counter()
             path = pass_path(job.passes_dir, frame)
-            rendered = job.overwrite or not frame_done(job.passes_dir, frame)
-            rendered = rendered and (needed is None or needed(frame))
+            wanted = needed is None or needed(frame)
+            rendered = wanted and (
+                job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes)
+            )
+            # Made with the other denoise setting: said, never reused silently.
+            redo = (
+                rendered
+                and not job.overwrite
+                and frame_done(job.passes_dir, frame, not job.denoise_passes)
+            )
             if rendered:
                 scene.frame_set(frame)
                 specs = sss_materials.material_specs(job.materials, scene)
-                with PassSetup(scene, job.materials, job.view_layer, job.engine, job.normal):
-                    render_frame(scene, frame, job.passes_dir, specs, job.view_layer)
-            seconds = time.perf_counter() - start
+                with PassSetup(
+                    scene, job.materials, job.view_layer, job.engine, job.normal, job.denoise_passes
+                ):
+                    render_frame(
+                        scene, frame, job.passes_dir, specs, job.view_layer, job.denoise_passes
+                    )
+            step = Step(index, total, frame, path, rendered, 0.0)
+            if wanted and job.ground_truth_due(index - 1):
+                step.ground_truth = gt.ground_truth_path(job.ground_truth_dir, frame)
+                step.ground_truth_rendered = job.overwrite or not gt.ground_truth_done(
+                    job.ground_truth_dir, frame, job.ground_truth_samples, job.ground_truth_method
+                )
+                if step.ground_truth_rendered:
+                    gt.render_ground_truth(
+                        scene,
+                        frame,
+                        job.ground_truth_dir,
+                        job.materials,
+                        job.view_layer,
+                        job.ground_truth_samples,
+                        job.ground_truth_method,
+                    )
+            step.seconds = time.perf_counter() - start
             if job.log:
                 what = "rendered" if rendered else "exists, reused"
+                if redo:
+                    was = "on" if not job.denoise_passes else "off"
+                    what = f"rendered again (the existing ones were made with denoising {was})"
+                if step.ground_truth is not None:
+                    what += ", ground truth " + (
+                        "rendered" if step.ground_truth_rendered else "exists, reused"
+                    )
                 elapsed = time.perf_counter() - began
                 job.log(
-                    f"frame {index}/{total} ({frame}) passes {what} [{seconds:.2f} s; "
+                    f"frame {index}/{total} ({frame}) passes {what} [{step.seconds:.2f} s; "
                     f"passes elapsed {format_clock(elapsed)}, eta {format_clock(elapsed / index * (total - index))}]"
                 )
-            yield Step(index, total, frame, path, rendered, seconds)
+            yield step
     finally:
         scene.frame_set(frame_before, subframe=subframe_before)
+
+
+def run_source(job: Job) -> str:
+    """Identity of the post's input: the pass folder, how the passes were made, the ground truth.
+
+    Part of the run's checkpoint signature, so a run resumes only on the
+    same input (plain pass folder path without denoising or ground truth).
+    """
+    source = os.fspath(job.passes_dir.resolve())
+    if job.denoise_passes:
+        source += " (denoised)"
+    if job.ground_truth:
+        source += (
+            f"; ground truth {os.fspath(job.ground_truth_dir.resolve())} "
+            f"({job.ground_truth_method}, {job.ground_truth_samples} spp, "
+            f"every {job.ground_truth_every})"
+        )
+    return source
 
 
 def run_of(job: Job, write: bool = True) -> SequenceRun:
@@ -287,7 +407,7 @@ def run_of(job: Job, write: bool = True) -> SequenceRun:
         job.params,
         job.options,
         reference_every=job.reference_every,
-        source=os.fspath(job.passes_dir.resolve()),
+        source=run_source(job),
     )
     existing = "overwrite" if job.overwrite else "continue"
     return SequenceRun(job.out, spec, job.frames, existing=existing, write=write, log=job.log)
@@ -298,7 +418,10 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
     if not run.pending(step.frame):
         return
     start = time.perf_counter()
-    done = run.step(read_frame(step.path, number=step.frame), source=step.path.name)
+    truth = read_combined(step.ground_truth) if step.ground_truth is not None else None
+    done = run.step(
+        read_frame(step.path, number=step.frame), source=step.path.name, ground_truth=truth
+    )
     step.results, step.rows = done.results, done.rows
     step.post_seconds = time.perf_counter() - start
     step.seconds += step.post_seconds
@@ -315,7 +438,10 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
         from .properties import store_stats
 
         value = float(row["psnr_db"]) if row["psnr_db"] else None
-        store_stats(settings, step.frame, job.display, result.spp, result.pass_ms, value)
+        truth = float(row["psnr_gt_db"]) if row.get("psnr_gt_db") else None
+        store_stats(
+            settings, step.frame, job.display, result.spp, result.pass_ms, value, psnr_gt_db=truth
+        )
 
 
 def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
@@ -337,7 +463,8 @@ def apply_frame(job: Job) -> Step:
     """Passes (rendered only when missing or ``overwrite``) and post-process of one frame.
 
     The job's range must be a single frame. Nothing is written but the pass
-    file; adaptive methods start without history, so they use n_init samples.
+    file (and the ground truth, when the job asks for it); adaptive methods
+    start without history, so they use n_init samples.
     """
     if len(job.frames) != 1:
         raise RenderError(f"apply_frame takes one frame, got {len(job.frames)}")
@@ -363,6 +490,11 @@ def job_from_scene(
     log: Log = None,
     reference_every: int = 1,
     options: MethodOptions | Mapping | None = None,
+    denoise_passes: bool | None = None,
+    ground_truth: bool | None = None,
+    ground_truth_samples: int | None = None,
+    ground_truth_every: int | None = None,
+    ground_truth_method: str | None = None,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
@@ -401,7 +533,16 @@ def job_from_scene(
         context=context,
         log=log,
         reference_every=reference_every,
+        denoise_passes=_given(denoise_passes, settings.use_denoise_passes),
+        ground_truth=_given(ground_truth, settings.use_ground_truth),
+        ground_truth_samples=_given(ground_truth_samples, settings.ground_truth_samples),
+        ground_truth_every=_given(ground_truth_every, settings.ground_truth_every),
+        ground_truth_method=_given(ground_truth_method, settings.ground_truth_method),
     )
+
+
+def _given(value, setting):
+    return setting if value is None else value
 
 
 # -- the one-call API ---------------------------------------------------------------------------
@@ -432,6 +573,11 @@ def render_sequence(
     images: bool = False,
     reference_every: int = 1,
     options: MethodOptions | Mapping | None = None,
+    denoise_passes: bool | None = None,
+    ground_truth: bool | None = None,
+    ground_truth_samples: int | None = None,
+    ground_truth_every: int | None = None,
+    ground_truth_method: str | None = None,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -462,11 +608,23 @@ def render_sequence(
     reference_every : int
         Compute the reference (and PSNR) on every k-th frame of the range only.
     options : MethodOptions, or a mapping of overrides (see :func:`job_from_scene`)
+    denoise_passes : bool, optional
+        Denoise the passes with Blender's OIDN (Cycles passes only); defaults
+        to ``sss_settings.use_denoise_passes``.
+    ground_truth : bool, optional
+        Also render the frames with Cycles' own subsurface on (always Cycles)
+        into ``<out>/ground_truth`` and fill the ground-truth columns;
+        defaults to ``sss_settings.use_ground_truth``.
+    ground_truth_samples, ground_truth_every : int, optional
+        Its samples per pixel, and every k-th frame only; default: the settings.
+    ground_truth_method : {"BURLEY", "RANDOM_WALK"}, optional
+        Cycles' subsurface method for it; default: the setting.
 
     Returns
     -------
     list of dict
-        Metric rows (frame, method, spp, pass_ms, psnr_db) as in metrics.csv.
+        Metric rows (frame, method, spp, pass_ms, psnr_db and, with a ground
+        truth, its columns) as in metrics.csv.
 
     Raises
     ------
@@ -503,6 +661,11 @@ def render_sequence(
             log=log,
             reference_every=reference_every,
             options=options,
+            denoise_passes=denoise_passes,
+            ground_truth=ground_truth,
+            ground_truth_samples=ground_truth_samples,
+            ground_truth_every=ground_truth_every,
+            ground_truth_method=ground_truth_method,
         )
         run = run_of(job)
         for _ in iter_sequence(job, run):

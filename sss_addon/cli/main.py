@@ -226,6 +226,47 @@ def build_parser() -> argparse.ArgumentParser:
         "with the reference: compute it (and PSNR) on every K-th frame only "
         "(default 1: every frame)",
     )
+    rnd.add_argument(
+        "--denoise-passes",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided "
+        "by Cycles' Denoising Albedo and Normal) before the post reads them; Cycles passes "
+        "only; pass files made with the other setting are rendered again "
+        "(default: the scene's cvsss setting)",
+    )
+    truth = rnd.add_argument_group("ground truth (Cycles with its own subsurface on)")
+    truth.add_argument(
+        "--ground-truth",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also render the frames with Cycles' own subsurface on into OUT/ground_truth/"
+        "####.exr and report PSNR against it in metrics.csv (psnr_gt_db, …); always rendered "
+        "with Cycles, also when the passes use --engine EEVEE; denoising off, fixed seed "
+        "(default: the scene's cvsss setting)",
+    )
+    truth.add_argument(
+        "--ground-truth-spp",
+        type=int,
+        default=None,
+        metavar="N",
+        help="samples per pixel of the ground truth (default: the scene's cvsss setting, 1024)",
+    )
+    truth.add_argument(
+        "--ground-truth-every",
+        type=int,
+        default=None,
+        metavar="K",
+        help="render the ground truth on the 1st, (K+1)-th, … frame of the range only "
+        "(default: the scene's cvsss setting, 1)",
+    )
+    truth.add_argument(
+        "--ground-truth-method",
+        choices=("burley", "random_walk"),
+        default=None,
+        help="Cycles' subsurface method of the ground truth: burley (Christensen-Burley, the "
+        "profile the post samples) or random_walk (default: the scene's cvsss setting, burley)",
+    )
     rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
     add_arguments(rnd)
 
@@ -324,6 +365,15 @@ def _render(args: argparse.Namespace) -> int:
     if overrides(args, "profile"):
         option_overrides["profile"] = options.profile
     _check_at_least_one("--reference-every", args.reference_every)
+    if args.ground_truth_every is not None:
+        _check_at_least_one("--ground-truth-every", args.ground_truth_every)
+    if args.ground_truth_spp is not None and not 1 <= args.ground_truth_spp <= 2**24:
+        raise UserError(f"--ground-truth-spp must be in [1, {2**24}], got {args.ground_truth_spp}")
+    if args.denoise_passes and args.engine == "EEVEE":
+        raise UserError(
+            "--denoise-passes needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
+            "passes to guide the denoiser"
+        )
     if args.blend is not None and not args.blend.is_file():
         raise UserError(f"{args.blend}: no such .blend file")
     try:
@@ -350,6 +400,13 @@ def _render(args: argparse.Namespace) -> int:
             reference=args.reference,
             reference_every=args.reference_every,
             options=option_overrides,
+            denoise_passes=args.denoise_passes,
+            ground_truth=args.ground_truth,
+            ground_truth_samples=args.ground_truth_spp,
+            ground_truth_every=args.ground_truth_every,
+            ground_truth_method=(
+                None if args.ground_truth_method is None else args.ground_truth_method.upper()
+            ),
         )
     except RenderError as exc:
         raise UserError(str(exc)) from None

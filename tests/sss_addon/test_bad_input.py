@@ -384,6 +384,9 @@ def test_full_disk_mid_run_then_resume(good, tmp_path, capfd, monkeypatch):
         (["--beta-min", "9", "--beta-max", "8"], ["beta_min must be <= beta_max"]),
         (["--frames", "5-2"], ["--frames must be A-B", "'5-2'"]),
         (["{missing}"], ["missing.blend", "no such .blend file"]),
+        (["--ground-truth", "--ground-truth-spp", "0"], ["--ground-truth-spp must be in [1, "]),
+        (["--ground-truth-every", "0"], ["--ground-truth-every must be >= 1, got 0"]),
+        (["--denoise-passes", "--engine", "EEVEE"], ["--denoise-passes needs Cycles passes"]),
     ],
 )
 def test_render_bad_input(tmp_path, capfd, args, fragments):

@@ -1,0 +1,158 @@
+"""Denoised passes: Blender's OIDN in a temporary compositor, same layout, never reused silently."""
+
+import json
+
+import numpy as np
+import OpenEXR
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from cvsss.sss_addon.blender import passes, render  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+DENOISED = ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color")
+UNTOUCHED = ("Depth", "Material Index", "Vector")
+# Header entries that change from render to render.
+VOLATILE = ("Date", "RenderTime", "chunkCount")
+
+
+def _read(path) -> tuple[dict, dict]:
+    """({part: {channel: pixels}}, {part: header without volatile entries})."""
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    pixels = {p.name(): {k: np.asarray(c.pixels) for k, c in p.channels.items()} for p in exr.parts}
+    headers = {
+        p.name(): {
+            k: str(v)
+            for k, v in p.header.items()
+            if k not in VOLATILE and not k.endswith("_time") and k != "channels"
+        }
+        for p in exr.parts
+    }
+    return pixels, headers
+
+
+def _rgb(pixels, name) -> np.ndarray:
+    part = pixels[f"ViewLayer.{name}"]
+    return np.stack([part[f"ViewLayer.{name}.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def _render(scene, out, denoise: bool, samples: int, seed: int = 0, frame: int = 2):
+    scene.cycles.samples, scene.cycles.seed = samples, seed
+    job = render.job_from_scene(
+        scene, frames=(frame, frame), out=out, denoise_passes=denoise, overwrite=True
+    )
+    (step,) = render.iter_passes(job)
+    return step.path
+
+
+def _user_compositor(scene):
+    """A compositor node tree of the user's, which must be left exactly as it is."""
+    tree = bpy.data.node_groups.new("User Compositing", "CompositorNodeTree")
+    blur = tree.nodes.new("CompositorNodeBlur")
+    tree.nodes.new("CompositorNodeRLayers")
+    tree.links.new(tree.nodes["Render Layers"].outputs["Image"], blur.inputs["Image"])
+    scene.compositing_node_group = tree
+    scene.render.use_compositing = True
+    return tree
+
+
+def _data_state(scene) -> dict:
+    tree = scene.compositing_node_group
+    return {
+        "scenes": sorted(s.name for s in bpy.data.scenes),
+        "node_groups": sorted(g.name for g in bpy.data.node_groups),
+        "images": sorted(i.name for i in bpy.data.images if i.name != "Render Result"),
+        "compositor": tree.name if tree else None,
+        "nodes": sorted((n.name, n.bl_idname) for n in tree.nodes) if tree else None,
+        "links": sorted((lk.from_node.name, lk.to_node.name) for lk in tree.links)
+        if tree
+        else None,
+        "use_compositing": scene.render.use_compositing,
+    }
+
+
+def test_denoised_passes_are_closer_to_many_samples(demo, tmp_path, snapshot):
+    scene_state, state_diff = snapshot
+    _user_compositor(demo)
+    demo.cycles.seed = 0
+    before, data_before = scene_state(demo), _data_state(demo)
+
+    noisy = _render(demo, tmp_path / "noisy", denoise=False, samples=4)
+    denoised = _render(demo, tmp_path / "denoised", denoise=True, samples=4)
+    demo.cycles.samples, demo.cycles.seed = 4, 0  # as the snapshot has them
+    assert not state_diff(before, scene_state(demo))
+    assert _data_state(demo) == data_before
+    assert not [p for p in denoised.parent.iterdir() if p.name.startswith(".")]
+
+    # Same layout: parts, channels and headers; only the four passes' pixels differ.
+    a, header_a = _read(noisy)
+    b, header_b = _read(denoised)
+    assert list(a) == list(b) and header_a == header_b
+    assert {part: list(ch) for part, ch in a.items()} == {part: list(ch) for part, ch in b.items()}
+    for name in UNTOUCHED:
+        for key, values in a[f"ViewLayer.{name}"].items():
+            np.testing.assert_array_equal(values, b[f"ViewLayer.{name}"][key], err_msg=key)
+    np.testing.assert_array_equal(
+        a["ViewLayer.Combined"]["ViewLayer.Combined.A"],
+        b["ViewLayer.Combined"]["ViewLayer.Combined.A"],
+    )
+    side_a = json.loads(noisy.with_suffix(".json").read_text())
+    side_b = json.loads(denoised.with_suffix(".json").read_text())
+    assert "denoised" not in side_a and side_b.pop("denoised") is True and side_a == side_b
+
+    # Closer to a 256-spp render (independent seed) on SSS pixels, pass by pass.
+    many = _render(demo, tmp_path / "many", denoise=False, samples=256, seed=17)
+    c, _ = _read(many)
+    sss = a["ViewLayer.Material Index"]["ViewLayer.Material Index.X"] > 0
+    assert sss.sum() > 100
+    for name in DENOISED:
+        target = _rgb(c, name)[sss]
+        before_mse = np.mean((_rgb(a, name)[sss] - target) ** 2)
+        after_mse = np.mean((_rgb(b, name)[sss] - target) ** 2)
+        assert after_mse < 0.9 * before_mse, (name, before_mse, after_mse)
+    lighting = ("Diffuse Direct", "Diffuse Indirect")
+    b_noisy = sum(_rgb(a, n) for n in lighting)[sss]
+    b_denoised = sum(_rgb(b, n) for n in lighting)[sss]
+    b_many = sum(_rgb(c, n) for n in lighting)[sss]
+    assert np.mean((b_denoised - b_many) ** 2) < 0.5 * np.mean((b_noisy - b_many) ** 2)
+
+
+def test_other_denoise_setting_is_rendered_again(demo, tmp_path, monkeypatch):
+    log = []
+    out = tmp_path / "o"
+    sidecar = out / "passes" / "0001.json"
+
+    def run(denoise):
+        job = render.job_from_scene(
+            demo, frames=(1, 1), out=out, methods=["none"], denoise_passes=denoise, log=log.append
+        )
+        return list(render.iter_sequence(job))
+
+    (step,) = run(False)
+    assert step.rendered and "denoised" not in json.loads(sidecar.read_text())
+    (step,) = run(True)  # the post starts over, and the passes are made again
+    assert step.rendered and json.loads(sidecar.read_text())["denoised"] is True
+    assert any("rendered again (the existing ones were made with denoising off)" in x for x in log)
+    assert not passes.frame_done(out / "passes", 1) and passes.frame_done(out / "passes", 1, True)
+    (step,) = run(True)
+    assert step.results == {}  # nothing to do: same passes, same run
+    (step,) = run(False)
+    assert step.rendered and "denoised" not in json.loads(sidecar.read_text())
+
+    # A failed re-render leaves no file that its sidecar does not describe.
+    def failing(scene):
+        raise RuntimeError("simulated render failure")
+
+    monkeypatch.setattr(passes, "_render_still", failing)
+    with pytest.raises(RuntimeError, match="simulated"):
+        run(True)
+    assert not (out / "passes" / "0001.exr").exists()
+    assert not passes.frame_done(out / "passes", 1, True)
+
+
+def test_denoising_needs_cycles_passes(demo, tmp_path):
+    with pytest.raises(render.RenderError, match="denoising the passes needs Cycles"):
+        render.job_from_scene(demo, out=tmp_path, engine="EEVEE", denoise_passes=True)
+    assert not (tmp_path / "passes").exists()
