@@ -97,6 +97,9 @@ class Method:
         How per-pixel sample counts are chosen.
     cv : {"none", "online", "constant"}
         Control variate applied to the tracked value (adaptive only).
+    temporal : {"", "plain", "guided"}
+        Temporal reuse of the distant estimate (core.mc.temporal): none, plain
+        accumulation, or guided by the control (``SSSParams.temporal_mode``).
     factory : callable (Method, SSSParams, MethodOptions) -> Processor
     """
 
@@ -105,6 +108,7 @@ class Method:
     description: str
     kind: str
     cv: str = "none"
+    temporal: str = ""
     factory: Factory = field(default=_monte_carlo, repr=False, compare=False)
 
     @property
@@ -148,6 +152,32 @@ METHODS: dict[str, Method] = {
             "Adaptive counts tracking the residual of a constant control variate (alpha = 1)",
             "adaptive",
             "constant",
+        ),
+        Method(
+            "as_t",
+            "AS + Temporal",
+            "Adaptive counts, then plain temporal accumulation of the estimate "
+            "(reprojected, clamped to the neighbourhood): the ghosting baseline",
+            "adaptive",
+            temporal="plain",
+        ),
+        Method(
+            "as_ocv_t",
+            "AS + OCV + Temporal",
+            "Online control variate, then temporal reuse guided by the control and a "
+            "noise-free proxy (no lag when lights flash)",
+            "adaptive",
+            "online",
+            temporal="guided",
+        ),
+        Method(
+            "as_ccv_t",
+            "AS + CCV + Temporal",
+            "Constant control variate, then temporal reuse guided by the control and a "
+            "noise-free proxy (no lag when lights flash)",
+            "adaptive",
+            "constant",
+            temporal="guided",
         ),
         Method(
             "reference",

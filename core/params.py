@@ -41,6 +41,7 @@ PAPER_DEFAULTS = {
 HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
 DISTANCES = ("surface", "planar")
+TEMPORAL_MODES = ("multiplicative", "subtractive")
 MAX_SPP = 4096
 
 #: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
@@ -389,6 +390,46 @@ class SSSParams(_Params):
         "closer to Cycles at silhouettes and on tilted surfaces), or the sampled planar radius "
         "(planar, the paper's)",
         choices=DISTANCES,
+        advanced=True,
+    )
+    temporal_mode: str = param(
+        "multiplicative",
+        label="Temporal Mode",
+        help="How the temporal methods (as_ccv_t, as_ocv_t) follow lighting change: divide by a "
+        "noise-free separable proxy and accumulate the ratio (multiplicative), or accumulate "
+        "the residual after the control and add the current control back (subtractive)",
+        choices=TEMPORAL_MODES,
+    )
+    temporal_min_weight: float = param(
+        0.1,
+        label="λ min (Temporal)",
+        help="Smallest weight of the current frame in the temporal accumulation; 1/λ min is "
+        "the longest memory in frames",
+        lo=0.0,
+        hi=1.0,
+        lo_open=True,
+        ui_lo=1e-3,
+        advanced=True,
+    )
+    temporal_clamp: float = param(
+        2.0,
+        label="Temporal Clamp",
+        help="Accumulated values are clipped to mean ± k·std of the current 3×3 neighbourhood "
+        "(TAA variance clipping) against trails",
+        unit="standard deviations",
+        lo=0.0,
+        ui_hi=1e3,
+        advanced=True,
+    )
+    temporal_tolerance: float = param(
+        0.3,
+        label="Temporal Tolerance",
+        help="τ of the history rectification: a change of ln(proxy) not explained by the "
+        "change of ln(control) of δ cuts the accumulated frames by exp(-(δ/τ)²)",
+        lo=0.0,
+        lo_open=True,
+        ui_lo=1e-4,
+        ui_hi=1e3,
         advanced=True,
     )
     truncate: float = param(

@@ -20,6 +20,14 @@ order. Two quality figures per frame and method (core.eval.metrics):
     the ``reference`` method, display-referred; empty on frames without a
     reference (``reference_every``: the reference keeps no history, so
     computing it on every k-th frame only is exact).
+``light_change``, ``flicker``
+    Temporal behaviour: the relative change of the mean lighting B over the
+    SSS pixels since the previous frame of the run (same for every method;
+    marks flashes and switches), and the method's *flicker*: the mean
+    absolute frame-to-frame change of the composite's luminance over the SSS
+    pixels whose passes did not change (luminance of Combined within 0.5 %),
+    relative to their mean luminance — what animators see as shimmer.
+    Empty on the first frame and after a gap (a resumed run keeps them).
 ``psnr_gt_db``, ``psnr_gt_full_db``, ``ratio_r/g/b``, ``rim_ratio``
     *against ground truth* (Cycles' own subsurface, when a ground-truth frame
     is handed to :meth:`SequenceRun.step`): RGB PSNR over SSS pixels and over
@@ -84,6 +92,8 @@ METRICS_FIELDS = (
     "ratio_g",
     "ratio_b",
     "rim_ratio",
+    "light_change",
+    "flicker",
 )
 
 #: Per-method checkpoint file (inside ``out/<method>/``).
@@ -292,6 +302,11 @@ class SequenceRun:
         }
         self._started = time.perf_counter()
         self._processed = 0
+        # Per method, its last frame: (number, luminance of Combined, mean B over
+        # SSS pixels, luminance of its composite) for light_change and flicker;
+        # float32 so that a resumed run (which reads them from the checkpoint)
+        # computes the same figures.
+        self._last: dict[str, tuple[int, np.ndarray, float, np.ndarray]] = {}
         if write:
             self._open(existing)
         self._todo_frames = sum(1 for n in self.numbers if self.pending(n))
@@ -403,6 +418,14 @@ class SequenceRun:
                 f"{name}: has no history for frame {done[-1]}; pass --overwrite to start over"
             )
         run.processor.restore(arrays)
+        if "run_last_y" in arrays and done:
+            # What light_change and flicker compare the next frame with.
+            self._last[run.name] = (
+                done[-1],
+                np.asarray(arrays["run_last_combined"]),
+                float(arrays["run_last_light"]),
+                np.asarray(arrays["run_last_y"]),
+            )
         run.done = done
         run.rows = list(state.get("rows", []))
         run.resumed = True
@@ -414,7 +437,13 @@ class SequenceRun:
             "rows": run.rows,
             "signature": self._signature,
         }
-        checkpoint.save(run.checkpoint, state, run.processor.state())
+        arrays = dict(run.processor.state())
+        last = self._last.get(run.name)
+        if last is not None and run.done and last[0] == run.done[-1]:
+            arrays["run_last_combined"] = last[1]
+            arrays["run_last_light"] = np.array(last[2])
+            arrays["run_last_y"] = last[3]
+        checkpoint.save(run.checkpoint, state, arrays)
 
     # -- stepping ----------------------------------------------------------------------------
     def pending(self, number: int) -> bool:
@@ -474,6 +503,10 @@ class SequenceRun:
             )
         rims = None
         self._processed += 1
+        combined_y = luminance(frame.combined.astype(np.float64)).astype(np.float32)
+        light_y = luminance(frame.lighting.astype(np.float64))
+        previous = self._previous(number)
+        light_mean = None
         ref = None
         if self.reference_due(number):
             # The reference keeps no history, so recomputing it for a method that
@@ -502,6 +535,24 @@ class SequenceRun:
                 if rims is None:
                     rims = silhouette(result.mask, frame.material, frame.depth)
                 row.update(ground_truth_columns(result, ground_truth, rims))
+            if light_mean is None:
+                light_mean = float(light_y[result.mask].mean()) if result.mask.any() else 0.0
+            ours_y = luminance(result.composite.astype(np.float64)).astype(np.float32)
+            last = self._last.get(run.name)
+            if last is not None and last[0] == previous:
+                _, last_combined, last_light, last_y = last
+                if last_light > 0:
+                    row["light_change"] = _fmt(abs(light_mean - last_light) / last_light)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    stable = result.mask & (
+                        np.abs(combined_y - last_combined) <= np.float32(0.005) * combined_y
+                    )
+                if stable.any():
+                    level = float(ours_y[stable].astype(np.float64).mean())
+                    if level > 0:
+                        change = np.abs(ours_y[stable].astype(np.float64) - last_y[stable])
+                        row["flicker"] = _fmt(float(change.mean()) / level, 6)
+            self._last[run.name] = (number, combined_y, light_mean, ours_y)
             if self.write:
                 write_result(
                     run.folder / f"{number:04d}.exr",
@@ -528,6 +579,11 @@ class SequenceRun:
             write_text(self.out / "metrics.csv", format_metrics(self.rows))
         step.seconds = time.perf_counter() - began
         return step
+
+    def _previous(self, number: int) -> int | None:
+        """The frame before ``number`` in the run (None for the first)."""
+        i = self._position[number]
+        return self.numbers[i - 1] if i > 0 else None
 
     def finish(self) -> list[dict]:
         """Write the metrics when no frame needed work (all done before), and return the rows."""

@@ -59,11 +59,14 @@ class DistantEstimate:
     distant : (P, 3) float64, Î per channel (linear, same units as lighting)
     samples : int, samples actually taken (Σm)
     fallback : int, samples that fell back to the centre value
+    variance : (P,) float64 or None, the sample variance of Î's Rec. 709
+        luminance (linear²) when asked for: 0 without samples, inf with one
     """
 
     distant: np.ndarray
     samples: int
     fallback: int
+    variance: np.ndarray | None = None
 
 
 def _chunks(counts: np.ndarray, limit: int):
@@ -90,6 +93,7 @@ def estimate_distant(
     seed: int,
     depth_slope: float,
     chunk_samples: int = 1 << 20,
+    variance: bool = False,
 ) -> DistantEstimate:
     """Estimate Î for every SSS pixel with the given per-pixel sample counts.
 
@@ -103,6 +107,7 @@ def estimate_distant(
     frame, seed : int, select the per-pixel R2 offsets
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
     chunk_samples : int, batch size bound (memory)
+    variance : bool, also estimate the variance of Î's luminance from the samples
 
     Returns
     -------
@@ -118,8 +123,9 @@ def estimate_distant(
     active = np.flatnonzero((counts > 0) & (gsum > 0))
     total = int(counts[active].sum())
     fallback = 0
+    var_sum = np.zeros((geom.size, 2)) if variance else None
     if total == 0:
-        return DistantEstimate(distant, 0, 0)
+        return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
     # Per active pixel quantities, computed once; samples expand them with
     # np.repeat (a streaming copy) rather than random gathers.
     sx_all, sy_all = pixel_hashes(geom.x[active], geom.y[active], frame, seed)
@@ -254,4 +260,16 @@ def estimate_distant(
         pix = active[a:b]
         for ci in range(3):
             distant[pix, ci] += np.bincount(local, weights=diff[ci], minlength=m) / c
-    return DistantEstimate(distant, total, fallback)
+        if var_sum is not None:
+            y = diff[0] * np.float32(0.2126) + diff[1] * np.float32(0.7152)
+            y += diff[2] * np.float32(0.0722)
+            var_sum[pix, 0] += np.bincount(local, weights=y, minlength=m)
+            var_sum[pix, 1] += np.bincount(local, weights=y.astype(np.float64) ** 2, minlength=m)
+    spread = None
+    if var_sum is not None:
+        m_all = counts.astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s2 = (var_sum[:, 1] - var_sum[:, 0] ** 2 / m_all) / (m_all - 1.0)
+            spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
+        spread[(m_all == 0) | (gsum == 0)] = 0.0
+    return DistantEstimate(distant, total, fallback, spread)

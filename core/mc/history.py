@@ -4,7 +4,9 @@ Two histories per pixel, as in the paper (P Alg. 3):
 
 - ``H = (μ, σ², m̄)``, three floats (SPVG);
 - ``J = (Σ_xx, Σ_xy, Σ_yy, ζ_f, ζ_g)`` for the online control variate (the
-  paper drops Σ_xx; we keep it for the α/variance maps, it costs one float).
+  paper drops Σ_xx; we keep it for the α/variance maps, it costs one float);
+- with temporal reuse, the accumulated value and its frame count, and last
+  frame's proxy and control (:data:`T_FIELDS`, 10 floats; core.mc.temporal).
 
 Buffers are full-image (H, W) arrays stored in float32 or, to mimic GPU
 RGBA16F render targets, float16. Arithmetic always happens in float64; only
@@ -39,6 +41,22 @@ import numpy as np
 H_FIELDS = ("mu", "var", "mbar")
 J_FIELDS = ("sxx", "sxy", "syy", "zf", "zg")
 COV_FIELDS = ("sxx", "sxy", "syy")
+#: Temporal reuse (core.mc.temporal): accumulated value per channel, frames
+#: accumulated, and last frame's proxy and control per channel.
+T_FIELDS = (
+    "acc_r",
+    "acc_g",
+    "acc_b",
+    "acc_n",
+    "prox_r",
+    "prox_g",
+    "prox_b",
+    "ctl_r",
+    "ctl_g",
+    "ctl_b",
+)
+#: Buffers that are zeroed where the reprojection finds no matching surface.
+RESET_FIELDS = ("acc_n",)
 
 #: Relative depth change beyond which a reprojected history is rejected.
 REPROJECT_DEPTH_TOLERANCE = 0.1
@@ -96,6 +114,7 @@ class History:
         target_variance: float = 1.0,
         *,
         scaled: bool = True,
+        temporal: bool = False,
     ) -> History:
         """An all-invalid history.
 
@@ -108,10 +127,13 @@ class History:
         scaled : bool
             False stores float16 values unscaled, which underflows at the
             paper's η_cv (kept only to measure that; see module doc).
+        temporal : bool
+            Also hold the temporal-reuse buffers (:data:`T_FIELDS`).
         """
         dt = _storage(precision)
         half = precision == "float16" and scaled
-        buffers = {name: np.zeros(shape, dtype=dt) for name in (*H_FIELDS, *J_FIELDS)}
+        names = (*H_FIELDS, *J_FIELDS, *(T_FIELDS if temporal else ()))
+        buffers = {name: np.zeros(shape, dtype=dt) for name in names}
         return cls(
             shape=tuple(shape),
             precision=precision,
@@ -216,13 +238,19 @@ class History:
         with np.errstate(invalid="ignore"):
             close = np.abs(prev_depth - cur_depth) <= REPROJECT_DEPTH_TOLERANCE * cur_depth
         same = inside & (self.material.reshape(-1)[src] == material.reshape(-1)) & close
+        buffers = {k: v.reshape(-1)[src].reshape(self.shape) for k, v in self.buffers.items()}
+        for name in RESET_FIELDS:
+            if name in buffers:
+                buffers[name] = np.where(same.reshape(self.shape), buffers[name], 0).astype(
+                    self.dtype
+                )
         out = History(
             shape=self.shape,
             precision=self.precision,
             cov_scale=self.cov_scale,
             var_scale=self.var_scale,
             frame=self.frame,
-            buffers={k: v.reshape(-1)[src].reshape(self.shape) for k, v in self.buffers.items()},
+            buffers=buffers,
             valid=(self.valid.reshape(-1)[src] & same).reshape(self.shape),
             cv_valid=(self.cv_valid.reshape(-1)[src] & same).reshape(self.shape),
             material=np.asarray(material, dtype=np.int32).copy(),

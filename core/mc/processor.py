@@ -18,12 +18,18 @@ from ..eval.color import REC709
 from ..frame import Frame
 from ..geometry import Geometry, prepare
 from ..methods import Method, MethodOptions
-from ..params import SSSParams
+from ..params import SeparableParams, SSSParams
+from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
-from . import adaptive, control_variates
+from . import adaptive, control_variates, temporal
 from .estimator import estimate_distant
 from .history import History
+
+#: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
+#: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
+#: steps and the accumulated ratio drifts behind a moving shadow).
+PROXY_KERNEL = SeparableParams(kernel="pre_integrated", taps=17, filter="linear")
 
 #: Bound on the tracked luminances f̄, G (their squares stay finite in float64).
 TRACK_LIMIT = 1e150
@@ -54,6 +60,7 @@ class MonteCarloProcessor:
         self.options = options
         self.profiles = ProfileCache(params, options.profile)
         self.history: History | None = None
+        self._proxy_kernels: tuple[Profile, dict] | None = None
 
     # -- state ------------------------------------------------------------------------
     def state(self) -> dict[str, np.ndarray]:
@@ -87,7 +94,11 @@ class MonteCarloProcessor:
         p = self.params
         if self.history is None:
             self.history = History.empty(
-                frame.shape, p.history_precision, p.eta_cv, p.target_variance
+                frame.shape,
+                p.history_precision,
+                p.eta_cv,
+                p.target_variance,
+                temporal=bool(self.method.temporal),
             )
         elif self.history.shape != frame.shape:
             raise ValueError(
@@ -130,19 +141,44 @@ class MonteCarloProcessor:
             seed=p.seed ^ self.method.seed_salt,
             depth_slope=p.depth_slope,
             chunk_samples=p.chunk_samples,
+            variance=self.method.temporal == "guided",
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 
         b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
-        shaded = (1.0 - geom.gamma) * b + est.distant
+        distant = est.distant
+        proxy = None
+        if self.method.temporal == "guided" and p.temporal_mode == "multiplicative":
+            t_proxy = time.perf_counter()
+            proxy = self._proxy(frame, profile, geom, b)
+            pass_ms += (time.perf_counter() - t_proxy) * 1e3
 
         t1 = time.perf_counter()
         alpha = variance = None
         if hist is not None:
+            noise = None if est.variance is None else np.sqrt(est.variance)
             alpha, variance = self._update(hist, geom, m, valid, est.distant, b)
+            if self.method.temporal:
+                mode = "plain" if self.method.temporal == "plain" else p.temporal_mode
+                cv_alpha = alpha if self.method.cv == "online" else np.ones(geom.size)
+                distant, _ = temporal.reuse(
+                    hist,
+                    geom,
+                    est.distant,
+                    geom.gamma * b,
+                    cv_alpha,
+                    proxy,
+                    m > 0,
+                    mode=mode,
+                    min_weight=p.temporal_min_weight,
+                    clamp=p.temporal_clamp,
+                    tolerance=p.temporal_tolerance,
+                    noise=noise,
+                )
             hist.frame = frame.number
             self.history = hist
         update_ms = (time.perf_counter() - t1) * 1e3
+        shaded = (1.0 - geom.gamma) * b + distant
         return assemble(
             frame,
             geom,
@@ -159,6 +195,24 @@ class MonteCarloProcessor:
             variance=variance,
             valid=valid,
         )
+
+    def _proxy(self, frame: Frame, profile: Profile, geom: Geometry, b: np.ndarray) -> np.ndarray:
+        """(P, 3) the separable estimate of the distant integral: the noise-free proxy."""
+        from ..separable.apply import apply
+        from ..separable.kernels import build_kernels
+
+        if self._proxy_kernels is None or self._proxy_kernels[0] is not profile:
+            self._proxy_kernels = (profile, build_kernels(profile, PROXY_KERNEL))
+        _, shaded, _ = apply(
+            frame,
+            profile,
+            PROXY_KERNEL,
+            self._proxy_kernels[1],
+            seed=self.params.seed,
+            depth_slope=self.params.depth_slope,
+            geom=geom,
+        )
+        return shaded - (1.0 - geom.gamma) * b
 
     def _update(self, hist, geom, m, valid, distant, b):
         """History (and CV) update after sampling; returns (α, σ²) per SSS pixel."""
