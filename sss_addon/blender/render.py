@@ -48,6 +48,7 @@ from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun, format_clock
 from . import ground_truth as gt
 from . import materials as sss_materials
+from .console import StdoutFilter
 from .passes import (
     PassSetup,
     RenderError,
@@ -722,8 +723,17 @@ def render_sequence(
             warmup_frames=warmup_frames,
         )
         run = run_of(job)
-        for _ in iter_sequence(job, run):
-            pass
+        # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.
+        console = StdoutFilter(os.fspath(job.out)) if bpy.app.background and log else None
+        if console is not None:
+            console.start()
+        try:
+            for _ in iter_sequence(job, run):
+                if console is not None:
+                    console.forward()
+        finally:
+            if console is not None:
+                console.stop()
         return run.rows
     finally:
         if unregister is not None:

@@ -115,6 +115,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
     )
     assert run.returncode == 0, run.stderr[-3000:]
     assert "frame 2/2 (2)" in run.stdout
+    assert "Saved:" not in run.stdout  # Blender's lines about the temporary pass files
     assert demo_blend.read_bytes() == before  # never saved
 
     # The scene's saved settings choose the method (as_ocv); no reference unless asked.
