@@ -334,7 +334,8 @@ class PassSetup(SceneSetup):
     def _apply(self) -> None:
         scene = self.scene
         r = scene.render
-        r.engine = self.engine
+        if r.engine != self.engine:  # the update tells every viewport: only when it changes
+            r.engine = self.engine
         r.use_motion_blur = False  # the Vector pass is not written with motion blur
         self._output_exr()
         if getattr(scene, "cycles", None) is not None:
