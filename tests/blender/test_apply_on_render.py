@@ -237,7 +237,7 @@ def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
     # Blender's job is over: passes rendered, nothing delivered, the scene still switched.
     assert not (tmp_path / "render").exists()
     assert scene.render.image_settings.file_format == "OPEN_EXR_MULTILAYER"
-    assert bpy.ops.sss.finish_render() == {"FINISHED"}
+    native._poll()  # the UI's timer: the job is over, so it finishes (no window here)
     assert state_diff(before, scene_state(scene)) == []
     assert native.active_session() is None
     for frame, path in _frame_paths(scene).items():
@@ -247,6 +247,21 @@ def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
     saved = tmp_path / "render_result.png"
     bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
     want = _colour_managed(scene, expected[3], tmp_path / "want_rr.png")
+    assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
+
+
+def test_ui_f12_shows_the_finished_frame(scene, tmp_path, snapshot, ui):
+    scene_state, state_diff = snapshot
+    scene.frame_set(1)
+    expected = _reference(scene, tmp_path / "ref")[1]
+    before = scene_state(scene)
+    assert bpy.ops.render.render() == {"FINISHED"}  # F12: nothing is written
+    assert bpy.ops.sss.finish_render() == {"FINISHED"}
+    assert state_diff(before, scene_state(scene)) == []
+    assert not (tmp_path / "render").exists()
+    saved = tmp_path / "render_result.png"
+    bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
+    want = _colour_managed(scene, expected, tmp_path / "want.png")
     assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
 
 
