@@ -491,8 +491,8 @@ class Session:
 
         show_result(result)
         store_stats(self.scene.sss_settings, frame, self.method, result.spp, result.pass_ms, None)
-        self._post_seconds = time.perf_counter() - began
-        return f"frame {frame} {self.method}: spp {result.spp:.2f}, post {self._post_seconds:.2f} s"
+        seconds = time.perf_counter() - began
+        return f"frame {frame} {self.method}: spp {result.spp:.2f}, post {seconds:.2f} s"
 
     def _rgba(self, frame: int) -> np.ndarray | None:
         if self.last is not None and self.processed and self.processed[-1] == frame:
