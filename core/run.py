@@ -156,6 +156,8 @@ class RunSpec:
     reference : compute the reference (for PSNR) even if not in ``methods``
     reference_every : the reference (and PSNR) on the 1st, (k+1)-th, … frame only
     source : identity of the input (the resolved pass folder), part of the signature
+    warmup_frames : frames processed before the first one to fill the history
+        (:meth:`SequenceRun.warm_up`); part of the signature when > 0
     """
 
     methods: tuple[str, ...]
@@ -164,6 +166,7 @@ class RunSpec:
     reference: bool = False
     reference_every: int = 1
     source: str = ""
+    warmup_frames: int = 0
 
     def __post_init__(self) -> None:
         names = list(dict.fromkeys(self.methods))
@@ -179,6 +182,12 @@ class RunSpec:
             raise ValueError(
                 f"reference_every must be an integer >= 1, got {self.reference_every!r}"
             )
+        if (
+            isinstance(self.warmup_frames, bool)
+            or not isinstance(self.warmup_frames, int)
+            or self.warmup_frames < 0
+        ):
+            raise ValueError(f"warmup_frames must be an integer >= 0, got {self.warmup_frames!r}")
         object.__setattr__(self, "methods", tuple(names))
 
     @property
@@ -190,13 +199,17 @@ class RunSpec:
 
     def signature(self) -> dict:
         """What a checkpoint must share with the run that resumes it."""
-        return {
+        signature = {
             "source": self.source,
             "methods": self.order,
             "params": self.params.to_dict(),
             "options": self.options.to_dict(),
             "reference_every": self.reference_every,
         }
+        if self.warmup_frames:
+            # Only when used, so checkpoints of runs without warm-up still resume.
+            signature["warmup_frames"] = self.warmup_frames
+        return signature
 
 
 def _signature_difference(old: dict, new: dict) -> str:
@@ -206,6 +219,8 @@ def _signature_difference(old: dict, new: dict) -> str:
         return f"methods {','.join(old.get('methods') or [])}, now {','.join(new['methods'])}"
     if old.get("reference_every") != new["reference_every"]:
         return f"reference every {old.get('reference_every')} frames, now {new['reference_every']}"
+    if old.get("warmup_frames", 0) != new.get("warmup_frames", 0):
+        return f"warm-up {old.get('warmup_frames', 0)} frames, now {new.get('warmup_frames', 0)}"
     diffs = []
     for group in ("params", "options"):
         a, b = old.get(group) or {}, new[group]
@@ -464,6 +479,30 @@ class SequenceRun:
             key=lambda r: (self._position.get(int(r["frame"]), -1), self._rank[r["method"]]),
         )
 
+    @property
+    def fresh(self) -> bool:
+        """No frame processed by any method yet (nor restored from a checkpoint)."""
+        return not any(run.done for run in self.runs.values())
+
+    def warm_up(self, frame: Frame) -> None:
+        """Process ``frame``, which precedes the sequence, only to fill the history.
+
+        Nothing is written or recorded: no result, metric row or checkpoint.
+        Allowed only while the run is :attr:`fresh` (a resumed run has its
+        history); warm-up frames come in order, before the first frame. The
+        reference keeps no history and skips them.
+
+        Raises
+        ------
+        ValueError
+            The run has processed (or resumed) frames already.
+        """
+        if not self.fresh:
+            raise ValueError("warm-up frames come before the first frame of a run")
+        _feed_history((r.processor for r in self.runs.values() if r.name != "reference"), frame)
+        if self.log:
+            self.log(f"warm-up frame {int(frame.number)} processed (not written)")
+
     def step(
         self, frame: Frame, source: str | None = None, ground_truth: np.ndarray | None = None
     ) -> Step:
@@ -592,6 +631,58 @@ class SequenceRun:
             if self.log:
                 self.log(f"all {len(self.numbers)} frames were already done; nothing to do")
         return self.rows
+
+
+def _feed_history(processors, frame: Frame) -> None:
+    """Feed ``frame`` to ``processors`` and drop the results: only the history changes."""
+    for processor in processors:
+        processor.process(frame)
+
+
+class FrameStream:
+    """Every method of a run over frames handed over one at a time, with no fixed range.
+
+    The ordered worker of Blender's own render (Apply on Render): frames
+    arrive in increasing order — after warm-up frames, possibly over several
+    renders (``blender -b -f 1..3`` renders one frame per call) — and the
+    processors carry the history from one to the next. Nothing is written;
+    the caller keeps what it needs of each :class:`FrameResult`.
+
+    Parameters
+    ----------
+    spec : RunSpec (``source``, ``reference_every`` and ``warmup_frames`` are not used here)
+    """
+
+    def __init__(self, spec: RunSpec) -> None:
+        self.spec = spec
+        self.processors = {
+            name: make_processor(name, spec.params, spec.options) for name in spec.order
+        }
+        #: Number of the last frame processed (warm-up included), or None.
+        self.last: int | None = None
+        #: Frames processed (warm-up included).
+        self.count = 0
+
+    def _check_order(self, number: int) -> None:
+        if self.last is not None and number <= self.last:
+            raise ValueError(
+                f"frame {number} comes after frame {self.last}: frames are processed in order"
+            )
+
+    def warm_up(self, frame: Frame) -> None:
+        """Process ``frame`` for the history only (the reference skips it)."""
+        number = int(frame.number)
+        self._check_order(number)
+        _feed_history((p for n, p in self.processors.items() if n != "reference"), frame)
+        self.last, self.count = number, self.count + 1
+
+    def step(self, frame: Frame) -> dict[str, FrameResult]:
+        """Process ``frame`` with every method; results by method name."""
+        number = int(frame.number)
+        self._check_order(number)
+        results = {name: p.process(frame) for name, p in self.processors.items()}
+        self.last, self.count = number, self.count + 1
+        return results
 
 
 def ground_truth_columns(result: FrameResult, ground_truth: np.ndarray, rims: np.ndarray) -> dict:

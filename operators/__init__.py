@@ -3,9 +3,9 @@
 
 
 def _modules():
-    from . import demo, sequence
+    from . import demo, native, sequence
 
-    return (sequence, demo)
+    return (sequence, native, demo)
 
 
 def register():

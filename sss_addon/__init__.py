@@ -8,10 +8,11 @@ by :func:`register`.
 
 def _modules():
     from .. import operators
-    from .blender import panels, properties
+    from .blender import native, panels, properties
 
-    # Registration order: properties before the operators and panels that use them.
-    return (properties, operators, panels)
+    # Registration order: properties before the render handlers, operators and panels
+    # that use them.
+    return (properties, native, operators, panels)
 
 
 def register():

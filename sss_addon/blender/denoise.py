@@ -32,7 +32,7 @@ import numpy as np
 import OpenEXR
 
 from ...core.io.errors import OutputError
-from .passes import RenderError, rewrite_exr
+from .passes import RenderError, internal_render, rewrite_exr
 
 #: Passes the post reads and whether each is denoised with the albedo and normal guides.
 DENOISED_PASSES = {
@@ -157,7 +157,9 @@ def denoise_pass_file(path: str | Path, layer: str) -> None:
         r.use_file_extension = True
         scene.compositing_node_group = tree
         _build_tree(tree, image, layer, passes, Path(folder))
-        if "FINISHED" not in bpy.ops.render.render(scene=scene.name):
+        with internal_render():
+            finished = "FINISHED" in bpy.ops.render.render(scene=scene.name)
+        if not finished:
             raise RenderError(f"denoising {path.name} was cancelled")
         written = sorted(Path(folder).glob("*.exr"))
         if len(written) != 1:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -130,17 +131,22 @@ def material_shape(material, scene=None) -> tuple[float, float, float]:
 
 
 def scene_materials(scene, view_layer=None) -> list:
-    """Materials the scene renders (evaluated: instances and modifiers included), by name."""
+    """Materials the scene renders (evaluated: instances and modifiers included), by name.
+
+    Off the main thread (a render handler during a UI render) the depsgraph
+    belongs to the main thread: only the objects' material slots are read.
+    """
     view_layer = view_layer or scene.view_layers[0]
     found = {}
-    try:
-        depsgraph = view_layer.depsgraph
-        depsgraph.update()
-        for id_ in depsgraph.ids:
-            if isinstance(id_, bpy.types.Material):
-                found[id_.original.name] = id_.original
-    except (AttributeError, RuntimeError):
-        pass
+    if threading.current_thread() is threading.main_thread():
+        try:
+            depsgraph = view_layer.depsgraph
+            depsgraph.update()
+            for id_ in depsgraph.ids:
+                if isinstance(id_, bpy.types.Material):
+                    found[id_.original.name] = id_.original
+        except (AttributeError, RuntimeError):
+            pass
     for obj in scene.objects:
         for slot in getattr(obj, "material_slots", ()):
             if slot.material is not None:

@@ -6,6 +6,7 @@ from bpy.types import Panel
 
 from ...core.methods import METHODS
 from . import materials as sss_materials
+from .native import native_notes
 from .properties import QUALITY_METHODS, param_properties
 
 
@@ -23,6 +24,15 @@ class SSS_PT_render(Panel):
         layout.use_property_decorate = False
         s = context.scene.sss_settings
         method = METHODS.get(s.method)
+
+        col = layout.column()
+        col.prop(s, "apply_on_render")
+        sub = col.column()
+        sub.active = s.apply_on_render
+        sub.prop(s, "warmup_frames")
+        if s.apply_on_render:
+            for text in native_notes(context.scene):
+                sub.label(text=text, icon="INFO")
 
         layout.prop(s, "method")
         row = layout.row()

@@ -334,7 +334,8 @@ class PassSetup(SceneSetup):
     def _apply(self) -> None:
         scene = self.scene
         r = scene.render
-        r.engine = self.engine
+        if r.engine != self.engine:  # the update tells every viewport: only when it changes
+            r.engine = self.engine
         r.use_motion_blur = False  # the Vector pass is not written with motion blur
         self._output_exr()
         if getattr(scene, "cycles", None) is not None:
@@ -415,9 +416,35 @@ def frame_done(passes_dir: Path, frame: int, denoised: bool = False) -> bool:
     return record is not None and bool(record.get("denoised", False)) == denoised
 
 
+#: Depth of the add-on's own renders in progress (see :func:`internal_render`).
+_internal = 0
+
+
+@contextlib.contextmanager
+def internal_render() -> Iterator[None]:
+    """Mark the renders inside the block as the add-on's own.
+
+    The Apply on Render handlers (native.py) leave these renders alone: the
+    pass, ground-truth, denoise, warm-up and delivery renders are not the
+    user's.
+    """
+    global _internal
+    _internal += 1
+    try:
+        yield
+    finally:
+        _internal -= 1
+
+
+def rendering_internally() -> bool:
+    """Whether a render of the add-on's own is in progress (:func:`internal_render`)."""
+    return _internal > 0
+
+
 def _render_still(scene) -> None:
     """Render the current frame and write ``scene.render.filepath`` (tests replace this)."""
-    result = bpy.ops.render.render(write_still=True, scene=scene.name)
+    with internal_render():
+        result = bpy.ops.render.render(write_still=True, scene=scene.name)
     if "FINISHED" not in result:
         raise RenderError(f"rendering frame {scene.frame_current} was cancelled")
 
@@ -467,7 +494,20 @@ def render_frame(
     """
     scene.frame_set(frame)
     path = pass_path(passes_dir, frame)
-    sidecar = make_sidecar(
+    sidecar = pass_sidecar(scene, frame, specs, view_layer)
+    if denoise:
+        sidecar["denoised"] = True
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
+
+    render_to(scene, path, lambda temp: finish_pass_file(temp, scene, view_layer, sidecar, denoise))
+    return path
+
+
+def pass_sidecar(scene, frame: int, specs: list[MaterialSpec], view_layer) -> dict:
+    """The sidecar of ``frame``'s pass EXR: the camera now (scene at the frame) and ``specs``."""
+    return make_sidecar(
         scene_camera(scene),
         specs,
         frame=frame,
@@ -475,22 +515,17 @@ def render_frame(
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
+
+
+def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool) -> None:
+    """What follows Blender's write of a pass EXR: EEVEE's AOV becomes the Material
+    Index pass, and with ``denoise`` the passes the post reads are denoised."""
+    if scene.render.engine != "CYCLES":
+        aov_to_material_index(path, view_layer.name, sidecar["camera"]["clip_end"])
     if denoise:
-        sidecar["denoised"] = True
-    with contextlib.suppress(FileNotFoundError):
-        path.unlink()
-    write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
+        from .denoise import denoise_pass_file
 
-    def finish(temp: Path) -> None:
-        if scene.render.engine != "CYCLES":
-            aov_to_material_index(temp, view_layer.name, sidecar["camera"]["clip_end"])
-        if denoise:
-            from .denoise import denoise_pass_file
-
-            denoise_pass_file(temp, view_layer.name)
-
-    render_to(scene, path, finish)
-    return path
+        denoise_pass_file(path, view_layer.name)
 
 
 def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]) -> None:

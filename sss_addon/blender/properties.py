@@ -244,6 +244,30 @@ class SSSSettings(PropertyGroup):
         precision=1,
     )
 
+    # -- Blender's own render (native.py) --------------------------------------------------
+    apply_on_render: BoolProperty(
+        name="Apply on Render",
+        description=(
+            "Every normal render of this scene (F12, Ctrl-F12, blender -b -f/-a) renders the "
+            "passes with the scene's engine (Cycles or EEVEE), runs the method and writes the "
+            "finished frames to the scene's output path and format; materials, passes and "
+            "output settings are restored afterwards"
+        ),
+        default=False,
+    )
+    warmup_frames: IntProperty(
+        name="Warm-up Frames",
+        description=(
+            "Apply on Render: render and process this many frames before the first one, "
+            "without writing them, so the first delivered frame has a history and is as steady "
+            "as the rest (each costs a pass render plus its post-process)"
+        ),
+        default=8,
+        min=0,
+        max=10_000,
+        soft_max=64,
+    )
+
     # -- run settings ------------------------------------------------------------------------
     engine: EnumProperty(
         name="Engine",

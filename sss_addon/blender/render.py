@@ -36,7 +36,7 @@ import os
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import bpy
@@ -48,6 +48,7 @@ from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun, format_clock
 from . import ground_truth as gt
 from . import materials as sss_materials
+from .console import StdoutFilter
 from .passes import (
     PassSetup,
     RenderError,
@@ -70,6 +71,7 @@ __all__ = [
     "prepare",
     "render_sequence",
     "resolve_output_dir",
+    "warmup_frames",
 ]
 
 Log = Callable[[str], None] | None
@@ -99,6 +101,7 @@ class Job:
     ground_truth_samples: int = gt.DEFAULT_SAMPLES
     ground_truth_every: int = 1
     ground_truth_method: str = "BURLEY"
+    warmup_frames: int = 0
 
     @property
     def passes_dir(self) -> Path:
@@ -111,6 +114,22 @@ class Job:
     def ground_truth_due(self, index: int) -> bool:
         """Whether the frame at 0-based ``index`` of the range gets a ground truth."""
         return self.ground_truth and index % self.ground_truth_every == 0
+
+    @property
+    def warmup(self) -> list[int]:
+        """The frames processed before the first one to fill the history (may be < 0)."""
+        return warmup_frames(self.frames[0], self.warmup_frames)
+
+
+def warmup_frames(first: int, count: int, step: int = 1) -> list[int]:
+    """The ``count`` frames before ``first``, ``step`` apart, in order (negative ones included).
+
+    >>> warmup_frames(1, 3)
+    [-2, -1, 0]
+    >>> warmup_frames(10, 2, step=2)
+    [6, 8]
+    """
+    return [first - k * step for k in range(count, 0, -1)]
 
 
 @dataclass
@@ -222,10 +241,13 @@ def prepare(
     ground_truth_samples: int = gt.DEFAULT_SAMPLES,
     ground_truth_every: int = 1,
     ground_truth_method: str = "BURLEY",
+    warmup_frames: int = 0,
 ) -> Job:
     """Check everything a run needs before the scene is touched.
 
     ``reference_every = k`` computes the reference on every k-th frame only.
+    ``warmup_frames`` frames before the first are rendered and processed
+    first, without results, so the first result has a history.
     ``denoise_passes`` denoises the passes (Cycles only). ``ground_truth``
     renders every ``ground_truth_every``-th frame with Cycles' own subsurface
     (``ground_truth_method`` BURLEY or RANDOM_WALK) at ``ground_truth_samples``
@@ -243,6 +265,8 @@ def prepare(
     _check_count("reference_every", reference_every)
     _check_count("ground_truth_every", ground_truth_every)
     _check_count("ground_truth_samples", ground_truth_samples, gt.MAX_SAMPLES)
+    if isinstance(warmup_frames, bool) or not isinstance(warmup_frames, int) or warmup_frames < 0:
+        raise RenderError(f"warmup_frames must be an integer >= 0, got {warmup_frames!r}")
     method = str(ground_truth_method).upper()
     if method not in gt.METHODS:
         raise RenderError(
@@ -305,6 +329,7 @@ def prepare(
         ground_truth_samples=ground_truth_samples,
         ground_truth_every=ground_truth_every,
         ground_truth_method=method,
+        warmup_frames=warmup_frames,
     )
 
 
@@ -408,6 +433,7 @@ def run_of(job: Job, write: bool = True) -> SequenceRun:
         job.options,
         reference_every=job.reference_every,
         source=run_source(job),
+        warmup_frames=job.warmup_frames,
     )
     existing = "overwrite" if job.overwrite else "continue"
     return SequenceRun(job.out, spec, job.frames, existing=existing, write=write, log=job.log)
@@ -453,10 +479,30 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
     to :func:`run_of` the job.
     """
     run = run or run_of(job)
+    if job.warmup_frames and run.fresh:
+        warm_up(job, run)
     for step in iter_passes(job, needed=run.pending):
         _post_frame(job, run, step)
         yield step
     run.finish()
+
+
+def warm_up(job: Job, run: SequenceRun) -> None:
+    """Render (or reuse) the passes of the job's warm-up frames and feed them to ``run``.
+
+    Their pass files sit beside the others (``passes/-007.exr`` for frame -7);
+    no result, metric row or ground truth is made for them.
+    """
+    log = job.log
+    warm = replace(
+        job,
+        frames=job.warmup,
+        ground_truth=False,
+        log=(lambda text: log("warm-up " + text)) if log else None,
+    )
+    for step in iter_passes(warm):
+        frame = read_frame(step.path, number=step.frame)
+        run.warm_up(frame)
 
 
 def apply_frame(job: Job) -> Step:
@@ -495,6 +541,7 @@ def job_from_scene(
     ground_truth_samples: int | None = None,
     ground_truth_every: int | None = None,
     ground_truth_method: str | None = None,
+    warmup_frames: int = 0,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
@@ -538,6 +585,7 @@ def job_from_scene(
         ground_truth_samples=_given(ground_truth_samples, settings.ground_truth_samples),
         ground_truth_every=_given(ground_truth_every, settings.ground_truth_every),
         ground_truth_method=_given(ground_truth_method, settings.ground_truth_method),
+        warmup_frames=warmup_frames,
     )
 
 
@@ -578,6 +626,7 @@ def render_sequence(
     ground_truth_samples: int | None = None,
     ground_truth_every: int | None = None,
     ground_truth_method: str | None = None,
+    warmup_frames: int = 0,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -619,6 +668,11 @@ def render_sequence(
         Its samples per pixel, and every k-th frame only; default: the settings.
     ground_truth_method : {"BURLEY", "RANDOM_WALK"}, optional
         Cycles' subsurface method for it; default: the setting.
+    warmup_frames : int
+        Render and process this many frames before the first one (not
+        written), so the first result has a history, as Apply on Render does
+        with the scene's ``warmup_frames``. A run that resumes has its
+        history and skips them.
 
     Returns
     -------
@@ -666,10 +720,20 @@ def render_sequence(
             ground_truth_samples=ground_truth_samples,
             ground_truth_every=ground_truth_every,
             ground_truth_method=ground_truth_method,
+            warmup_frames=warmup_frames,
         )
         run = run_of(job)
-        for _ in iter_sequence(job, run):
-            pass
+        # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.
+        console = StdoutFilter(os.fspath(job.out)) if bpy.app.background and log else None
+        if console is not None:
+            console.start()
+        try:
+            for _ in iter_sequence(job, run):
+                if console is not None:
+                    console.forward()
+        finally:
+            if console is not None:
+                console.stop()
         return run.rows
     finally:
         if unregister is not None:

@@ -235,6 +235,15 @@ def build_parser() -> argparse.ArgumentParser:
         "only; pass files made with the other setting are rendered again "
         "(default: the scene's cvsss setting)",
     )
+    rnd.add_argument(
+        "--warmup-frames",
+        type=int,
+        default=0,
+        metavar="N",
+        help="render and process N frames before the first one, without writing them, so the "
+        "first result has a history (as Apply on Render does with the scene's Warm-up "
+        "Frames; default 0)",
+    )
     truth = rnd.add_argument_group("ground truth (Cycles with its own subsurface on)")
     truth.add_argument(
         "--ground-truth",
@@ -365,6 +374,8 @@ def _render(args: argparse.Namespace) -> int:
     if overrides(args, "profile"):
         option_overrides["profile"] = options.profile
     _check_at_least_one("--reference-every", args.reference_every)
+    if args.warmup_frames < 0:
+        raise UserError(f"--warmup-frames must be >= 0, got {args.warmup_frames}")
     if args.ground_truth_every is not None:
         _check_at_least_one("--ground-truth-every", args.ground_truth_every)
     if args.ground_truth_spp is not None and not 1 <= args.ground_truth_spp <= 2**24:
@@ -407,6 +418,7 @@ def _render(args: argparse.Namespace) -> int:
             ground_truth_method=(
                 None if args.ground_truth_method is None else args.ground_truth_method.upper()
             ),
+            warmup_frames=args.warmup_frames,
         )
     except RenderError as exc:
         raise UserError(str(exc)) from None

@@ -10,13 +10,19 @@ variable). Nothing touches the user's real Blender configuration.
 import atexit
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
+import tomllib
+from pathlib import Path
 
 import pytest
 
 _USER = tempfile.mkdtemp(prefix="cvsss-blender-user-")
 os.environ["BLENDER_USER_RESOURCES"] = _USER
 atexit.register(shutil.rmtree, _USER, ignore_errors=True)
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="session")
@@ -154,3 +160,70 @@ def state_diff(before: dict, after: dict) -> list[str]:
 def snapshot():
     """Function scene -> state dict, and the diff of two states."""
     return scene_state, state_diff
+
+
+# -- the extension as users get it -------------------------------------------------------
+def _blender_ext() -> Path:
+    """Blender's extension tool inside the bpy package (runs under plain Python)."""
+    import importlib.util
+
+    (base,) = importlib.util.find_spec("bpy").submodule_search_locations
+    (tool,) = Path(base).glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py")
+    return tool
+
+
+def _fetch_wheels(manifest: dict) -> None:
+    """Download the wheels the manifest lists, as `make wheels` does."""
+    for wheel in manifest.get("wheels", []):
+        path = ROOT / wheel
+        if path.is_file():
+            continue
+        name, version, python, _abi, platform = path.stem.split("-")
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--quiet",
+                f"{name}=={version}",
+                "--only-binary=:all:",
+                "--no-deps",
+                "--python-version",
+                python[2] + "." + python[3:],
+                "--platform",
+                platform,
+                "--dest",
+                str(path.parent),
+            ],
+            check=True,
+            timeout=600,
+        )
+        assert path.is_file(), f"pip did not fetch {path.name}"
+
+
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory):
+    """dist zip built with Blender's extension tool (same commands as `make extension`)."""
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    _fetch_wheels(manifest)
+    out = tmp_path_factory.mktemp("dist")
+    tool = _blender_ext()
+    build = subprocess.run(
+        [sys.executable, str(tool), "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    path = out / f"cvsss-{manifest['version']}.zip"
+    check = subprocess.run(
+        [sys.executable, str(tool), "validate", str(path)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=300,
+    )
+    assert check.returncode == 0, check.stdout + check.stderr
+    return path

@@ -106,6 +106,13 @@ def main(zip_path: str, work: str) -> None:
         {p.identifier for p in bpy.types.Material.bl_rna.properties} - material_props_before
     )
     report["operators_left"] = sorted(op for op in dir(bpy.ops.sss) if not op.startswith("_"))
+    report["handlers_left"] = sorted(
+        f"{name}: {handler.__module__}.{handler.__name__}"
+        for name in dir(bpy.app.handlers)
+        if isinstance(getattr(bpy.app.handlers, name), list)
+        for handler in getattr(bpy.app.handlers, name)
+        if getattr(handler, "__module__", "").startswith(MOD)
+    )
     bpy.ops.extensions.package_uninstall(repo_directory=repo_dir, pkg_id="cvsss")
     report["uninstalled"] = not os.path.exists(os.path.join(repo_dir, "cvsss"))
     prefs.extensions.repos.remove(repo)

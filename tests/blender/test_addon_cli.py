@@ -115,6 +115,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
     )
     assert run.returncode == 0, run.stderr[-3000:]
     assert "frame 2/2 (2)" in run.stdout
+    assert "Saved:" not in run.stdout  # Blender's lines about the temporary pass files
     assert demo_blend.read_bytes() == before  # never saved
 
     # The scene's saved settings choose the method (as_ocv); no reference unless asked.
@@ -159,3 +160,29 @@ def test_render_sequence_api_uses_current_scene(demo, tmp_path):
     assert float(rows[0]["spp"]) == 4.0
     assert (tmp_path / "api" / "fixed" / "0002.exr").is_file()
     assert demo.frame_current == 1
+
+
+def test_warmup_frames_fill_the_history_without_results(demo, tmp_path, capsys):
+    out = tmp_path / "warm"
+    assert cli.main(["render", "--frames", "1-2", "--out", str(out), "--warmup-frames", "-1"]) == 2
+    assert "--warmup-frames must be >= 0" in _error_line(capsys)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    args = ["render", "--frames", "1-2", "--out", str(out), "--method", "as_ocv", "--no-reference"]
+    assert cli.main([*args, "--warmup-frames", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "warm-up frame 1/2 (-1) passes rendered" in printed
+    assert "warm-up frame -1 processed (not written)" in printed
+    # Warm-up passes are kept beside the others; only the range has results and rows.
+    assert sorted(p.name for p in (out / "passes").glob("*.exr")) == [
+        "-001.exr",
+        "0000.exr",
+        "0001.exr",
+        "0002.exr",
+    ]
+    assert sorted(p.name for p in (out / "as_ocv").glob("*.exr")) == ["0001.exr", "0002.exr"]
+    rows = list(csv.DictReader(open(out / "metrics.csv")))
+    assert [r["frame"] for r in rows] == ["1", "2"]
+    # Another warm-up is another run: it starts over (the passes are reused).
+    warm = read_result(out / "as_ocv" / "0001.exr")["Composite"]
+    assert cli.main([*args, "--warmup-frames", "0", "--quiet"]) == 0
+    assert not np.array_equal(warm, read_result(out / "as_ocv" / "0001.exr")["Composite"])

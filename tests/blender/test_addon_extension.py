@@ -21,72 +21,6 @@ pytestmark = pytest.mark.bpy
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _blender_ext() -> Path:
-    """Blender's extension tool inside the bpy package (runs under plain Python)."""
-    import importlib.util
-
-    (base,) = importlib.util.find_spec("bpy").submodule_search_locations
-    (tool,) = Path(base).glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py")
-    return tool
-
-
-def _fetch_wheels(manifest: dict) -> None:
-    """Download the wheels the manifest lists, as `make wheels` does."""
-    for wheel in manifest.get("wheels", []):
-        path = ROOT / wheel
-        if path.is_file():
-            continue
-        name, version, python, _abi, platform = path.stem.split("-")
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "pip",
-                "download",
-                "--quiet",
-                f"{name}=={version}",
-                "--only-binary=:all:",
-                "--no-deps",
-                "--python-version",
-                python[2] + "." + python[3:],
-                "--platform",
-                platform,
-                "--dest",
-                str(path.parent),
-            ],
-            check=True,
-            timeout=600,
-        )
-        assert path.is_file(), f"pip did not fetch {path.name}"
-
-
-@pytest.fixture(scope="session")
-def extension_zip(tmp_path_factory):
-    """dist zip built with Blender's extension tool (same commands as `make extension`)."""
-    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
-    _fetch_wheels(manifest)
-    out = tmp_path_factory.mktemp("dist")
-    tool = _blender_ext()
-    build = subprocess.run(
-        [sys.executable, str(tool), "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=300,
-    )
-    assert build.returncode == 0, build.stdout + build.stderr
-    path = out / f"cvsss-{manifest['version']}.zip"
-    check = subprocess.run(
-        [sys.executable, str(tool), "validate", str(path)],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=300,
-    )
-    assert check.returncode == 0, check.stdout + check.stderr
-    return path
-
-
 def test_zip_content(extension_zip):
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     assert manifest["id"] == "cvsss" and manifest["blender_version_min"] == "4.2.0"
@@ -139,7 +73,13 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     assert report["module_file"].startswith(str(tmp_path / "repo" / "cvsss"))
     assert report["core_module"].startswith(str(tmp_path / "repo" / "cvsss"))
     assert "tests" not in report["installed_files"]
-    assert report["operators"] == ["apply_frame", "build_demo", "render_passes", "render_sequence"]
+    assert report["operators"] == [
+        "apply_frame",
+        "build_demo",
+        "finish_render",
+        "render_passes",
+        "render_sequence",
+    ]
     assert report["panels"] == ["SSS_PT_material", "SSS_PT_render", "SSS_PT_render_advanced"]
 
     settings = report["settings"]
@@ -154,6 +94,7 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     assert settings["engine"]["value"] == "CYCLES"
     assert settings["history_precision"]["value"] == "float32"
     assert settings["output_dir"]["value"] == "//cvsss/"
+    assert not settings["apply_on_render"]["value"] and settings["warmup_frames"]["value"] == 8
     assert not settings["use_frame_range"]["value"] and not settings["overwrite"]["value"]
     for name, entry in settings.items():
         if entry["default"] is not None and name not in ("cv_mode",):
@@ -180,4 +121,5 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     assert report["types_left"] == []
     assert report["scene_props_left"] == [] and report["material_props_left"] == []
     assert report["operators_left"] == []
+    assert report["handlers_left"] == []
     assert report["uninstalled"]

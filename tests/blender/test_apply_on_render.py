@@ -1,0 +1,387 @@
+"""Apply on Render: Blender's own render delivers the finished frames (real Cycles, tiny frames).
+
+The reference of every comparison is ``cvsss render`` (render.render_sequence)
+on the same scene, frames and settings: its linear Composite, written with
+the scene's colour management (Image.save_render) for 8-bit formats.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from cvsss.core.io.exr import read_result  # noqa: E402
+from cvsss.sss_addon.blender import native, render  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+ROOT = Path(__file__).resolve().parents[2]
+FRAMES = (1, 3)
+
+
+@pytest.fixture
+def scene(demo, tmp_path):
+    """The flash demo at 48x27, 4 samples, frames 1–3, Apply on Render on, no warm-up."""
+    demo.render.resolution_x, demo.render.resolution_y = 48, 27
+    demo.frame_start, demo.frame_end = FRAMES
+    demo.frame_set(2)
+    demo.render.filepath = str(tmp_path / "render" / "f_")
+    demo.render.image_settings.file_format = "PNG"
+    demo.sss_settings.apply_on_render = True
+    demo.sss_settings.warmup_frames = 0
+    return demo
+
+
+def _reference(
+    scene, out: Path, warmup: int = 0, frames=FRAMES, engine="CYCLES"
+) -> dict[int, np.ndarray]:
+    """Composite of ``cvsss render`` per frame (linear RGB, top row first)."""
+    method = scene.sss_settings.method
+    render.render_sequence(
+        scene,
+        frames,
+        out,
+        [method],
+        engine=engine,
+        reference=False,
+        log=None,
+        warmup_frames=warmup,
+    )
+    return {
+        f: read_result(out / method / f"{f:04d}.exr")["Composite"]
+        for f in range(frames[0], frames[1] + 1)
+    }
+
+
+def _image_pixels(path: Path) -> np.ndarray:
+    """(H, W, 4) float pixels of an image file as Blender reads it, top row first."""
+    image = bpy.data.images.load(str(path))
+    try:
+        width, height = image.size
+        pixels = np.empty(width * height * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+    finally:
+        bpy.data.images.remove(image)
+    return pixels.reshape(height, width, 4)[::-1]
+
+
+def _colour_managed(scene, rgb: np.ndarray, path: Path) -> np.ndarray:
+    """``rgb`` (linear) written with the scene's output settings, read back."""
+    height, width = rgb.shape[:2]
+    image = bpy.data.images.new("expected", width, height, alpha=True, float_buffer=True)
+    rgba = np.ones((height, width, 4), np.float32)
+    rgba[..., :3] = rgb
+    image.pixels.foreach_set(np.ascontiguousarray(rgba[::-1]).reshape(-1))
+    image.save_render(str(path), scene=scene)
+    bpy.data.images.remove(image)
+    return _image_pixels(path)
+
+
+def _exr_rgba(path: Path) -> np.ndarray:
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    channels = {k: np.asarray(c.pixels) for p in exr.parts for k, c in p.channels.items()}
+    return np.stack([channels[c] for c in "RGBA"], axis=-1)
+
+
+def _frame_paths(scene) -> dict[int, Path]:
+    return {f: Path(scene.render.frame_path(frame=f)) for f in range(FRAMES[0], FRAMES[1] + 1)}
+
+
+def test_png_animation_equals_cvsss_render(scene, tmp_path, snapshot):
+    scene_state, state_diff = snapshot
+    expected = _reference(scene, tmp_path / "ref")
+    before = scene_state(scene)
+    scenes = {s.name for s in bpy.data.scenes}
+    began = time.perf_counter()
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    print(f"3 frames at 48x27 with Apply on Render: {time.perf_counter() - began:.2f} s")
+    assert state_diff(before, scene_state(scene)) == []
+    assert {s.name for s in bpy.data.scenes} == scenes
+    assert native.active_session() is None
+    paths = _frame_paths(scene)
+    assert sorted(p.name for p in paths[1].parent.iterdir()) == [p.name for p in paths.values()]
+    for frame, path in paths.items():
+        want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
+        got = _image_pixels(path)
+        # Blender's writer dithers, save_render does not: at most one 8-bit step apart.
+        assert np.abs(got - want).max() <= 1 / 255 + 1e-6, frame
+    # The maps of the last frame are in the image datablocks, as after Render Sequence.
+    result = np.empty(48 * 27 * 4, np.float32)
+    bpy.data.images["SSS Result"].pixels.foreach_get(result)
+    np.testing.assert_allclose(result.reshape(27, 48, 4)[::-1, :, :3], expected[3], atol=1e-6)
+    assert scene.sss_settings.last_frame == 3
+
+
+def test_exr_animation_is_linear_and_equal(scene, tmp_path):
+    expected = _reference(scene, tmp_path / "ref")
+    settings = scene.render.image_settings
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    settings.color_mode = "RGBA"
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    for frame, path in _frame_paths(scene).items():
+        assert path.suffix == ".exr"
+        got = _exr_rgba(path)
+        np.testing.assert_allclose(got[..., :3], expected[frame], rtol=1e-6, atol=1e-7)
+        np.testing.assert_array_equal(got[..., 3], 1.0)
+
+
+def test_off_renders_as_without_the_add_on(scene, tmp_path):
+    scene.sss_settings.apply_on_render = False
+    scene.render.filepath = str(tmp_path / "off" / "f_")
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    handlers = {name: list(getattr(bpy.app.handlers, name)) for name in native._HANDLERS}
+    try:
+        native.unregister()
+        scene.render.filepath = str(tmp_path / "plain" / "f_")
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    finally:
+        native.register()
+    assert {n: list(getattr(bpy.app.handlers, n)) for n in native._HANDLERS} == handlers
+    for frame in range(FRAMES[0], FRAMES[1] + 1):
+        name = f"f_{frame:04d}.png"
+        np.testing.assert_array_equal(
+            _image_pixels(tmp_path / "off" / name), _image_pixels(tmp_path / "plain" / name)
+        )
+
+
+def test_warm_up_matches_cvsss_render_warm_up(scene, tmp_path, capfd):
+    scene.sss_settings.warmup_frames = 2
+    expected = _reference(scene, tmp_path / "ref", warmup=2)
+    cold = _reference(scene, tmp_path / "cold")
+    assert not np.array_equal(expected[1], cold[1])  # the warm-up changes frame 1
+    capfd.readouterr()
+    began = time.perf_counter()
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    seconds = time.perf_counter() - began
+    out = capfd.readouterr().out
+    lines = [line for line in out.splitlines() if line.startswith("cvsss: warm-up frame")]
+    assert [line.split()[3] for line in lines] == ["-1", "0"]
+    print(f"3 frames + 2 warm-up frames at 48x27: {seconds:.2f} s;", *lines, sep="\n")
+    for frame, path in _frame_paths(scene).items():
+        want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
+        assert np.abs(_image_pixels(path) - want).max() <= 1 / 255 + 1e-6, frame
+
+
+def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot):
+    scene_state, state_diff = snapshot
+    scene.frame_set(1)
+    expected = _reference(scene, tmp_path / "ref")[1]
+    settings = scene.render.image_settings
+    settings.file_format = "OPEN_EXR"
+    settings.color_depth = "32"
+    before = scene_state(scene)
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    assert state_diff(before, scene_state(scene)) == []
+    # Blender's still rule: the output path and the extension, no frame number.
+    still = Path(scene.render.filepath + ".exr")
+    assert sorted(p.name for p in still.parent.iterdir()) == [still.name]
+    np.testing.assert_allclose(_exr_rgba(still)[..., :3], expected, rtol=1e-6, atol=1e-7)
+    # F12: nothing written, the Render Result is the finished frame.
+    assert bpy.ops.render.render() == {"FINISHED"}
+    saved = tmp_path / "render_result.exr"
+    bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
+    np.testing.assert_allclose(_exr_rgba(saved)[..., :3], expected, rtol=1e-6, atol=1e-7)
+    assert state_diff(before, scene_state(scene)) == []
+
+
+def test_error_and_cancel_restore_everything(scene, tmp_path, snapshot, monkeypatch):
+    scene_state, state_diff = snapshot
+    before = scene_state(scene)
+    scenes = {s.name for s in bpy.data.scenes}
+
+    def broken(self, frame, path):
+        raise OSError("injected")
+
+    monkeypatch.setattr(native.Session, "_read", broken)
+    with pytest.raises(RuntimeError):  # Blender cancels: its next write fails on purpose
+        bpy.ops.render.render(animation=True)
+    assert state_diff(before, scene_state(scene)) == []
+    assert {s.name for s in bpy.data.scenes} == scenes
+    assert native.active_session() is None
+    assert not Path(scene.render.frame_path(frame=1)).parent.exists()
+    monkeypatch.undo()
+
+    # Cancelled right after it began (Esc during the first frame).
+    native.on_render_init(scene)
+    session = native.active_session()
+    assert scene.render.image_settings.file_format == "OPEN_EXR_MULTILAYER"
+    native.on_render_pre(scene)
+    native.on_render_cancel(scene)
+    assert native.active_session() is None
+    assert state_diff(before, scene_state(scene)) == []
+    assert not session.folder.exists()
+
+
+@pytest.fixture
+def ui(monkeypatch):
+    """The handlers behave as on Blender's render thread (F12 in the UI): they only switch
+    the settings and queue frames; sss.finish_render does the rest afterwards."""
+    monkeypatch.setattr(native, "_on_render_thread", lambda: True)
+
+
+def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
+    scene_state, state_diff = snapshot
+    scene.sss_settings.warmup_frames = 1
+    expected = _reference(scene, tmp_path / "ref", warmup=1)
+    before = scene_state(scene)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    # Blender's job is over: passes rendered, nothing delivered, the scene still switched.
+    assert not (tmp_path / "render").exists()
+    assert scene.render.image_settings.file_format == "OPEN_EXR_MULTILAYER"
+    native._poll()  # the UI's timer: the job is over, so it finishes (no window here)
+    assert state_diff(before, scene_state(scene)) == []
+    assert native.active_session() is None
+    for frame, path in _frame_paths(scene).items():
+        want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
+        assert np.abs(_image_pixels(path) - want).max() <= 1 / 255 + 1e-6, frame
+    # The Render Result shows the last finished frame.
+    saved = tmp_path / "render_result.png"
+    bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
+    want = _colour_managed(scene, expected[3], tmp_path / "want_rr.png")
+    assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
+
+
+def test_ui_f12_shows_the_finished_frame(scene, tmp_path, snapshot, ui):
+    scene_state, state_diff = snapshot
+    scene.frame_set(1)
+    expected = _reference(scene, tmp_path / "ref")[1]
+    before = scene_state(scene)
+    assert bpy.ops.render.render() == {"FINISHED"}  # F12: nothing is written
+    assert bpy.ops.sss.finish_render() == {"FINISHED"}
+    assert state_diff(before, scene_state(scene)) == []
+    assert not (tmp_path / "render").exists()
+    saved = tmp_path / "render_result.png"
+    bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
+    want = _colour_managed(scene, expected, tmp_path / "want.png")
+    assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
+
+
+def test_ui_escape_restores_and_keeps_written_frames(scene, tmp_path, snapshot, ui):
+    scene_state, state_diff = snapshot
+    before = scene_state(scene)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    steps = native.active_session().finish_steps()
+    texts = [next(steps) for _ in range(4)]  # three frames processed, the first written
+    assert texts[-1].startswith("frame 1 -> ")
+    steps.close()  # Esc
+    assert native.active_session() is None
+    assert state_diff(before, scene_state(scene)) == []
+    assert [p.name for p in (tmp_path / "render").iterdir()] == ["f_0001.png"]
+
+
+def test_frame_by_frame_renders_continue_the_history(scene, tmp_path):
+    """``blender -b -f 1..3`` renders one frame per call: the history goes on."""
+    scene.sss_settings.warmup_frames = 1
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    whole = {f: _image_pixels(p) for f, p in _frame_paths(scene).items()}
+    scene.render.filepath = str(tmp_path / "single" / "f_")
+    for frame in range(FRAMES[0], FRAMES[1] + 1):
+        scene.frame_start = scene.frame_end = frame
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    for frame, pixels in whole.items():
+        single = _image_pixels(tmp_path / "single" / f"f_{frame:04d}.png")
+        np.testing.assert_array_equal(single, pixels)
+
+
+def test_overwrite_off_and_placeholders_as_blender(scene, tmp_path):
+    scene.render.use_overwrite = False
+    scene.render.use_placeholder = True
+    kept = Path(scene.render.frame_path(frame=2))
+    kept.parent.mkdir(parents=True)
+    kept.write_bytes(b"another machine's frame")
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert kept.read_bytes() == b"another machine's frame"
+    for frame in (1, 3):
+        assert _image_pixels(Path(scene.render.frame_path(frame=frame))).shape == (27, 48, 4)
+
+
+def test_user_errors_stop_the_render_with_a_message(scene, tmp_path, snapshot):
+    scene_state, state_diff = snapshot
+    scene.render.engine = "BLENDER_WORKBENCH"
+    before = scene_state(scene)
+    with pytest.raises(RuntimeError, match="needs Cycles or EEVEE"):
+        bpy.ops.render.render(animation=True)
+    assert state_diff(before, scene_state(scene)) == []
+    assert not Path(scene.render.filepath).parent.exists()
+
+
+def test_movie_is_encoded_with_blenders_writer(scene, tmp_path):
+    scene.render.resolution_y = 28  # H.264 wants even sizes
+    settings = scene.render.image_settings
+    settings.media_type = "VIDEO"
+    settings.file_format = "FFMPEG"
+    scene.render.ffmpeg.format = "MPEG4"
+    scene.render.ffmpeg.codec = "H264"
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    movie = Path(scene.render.frame_path(frame=FRAMES[0]))
+    assert movie.name == "f_0001-0003.mp4" and movie.stat().st_size > 0
+    clip = bpy.data.movieclips.load(str(movie))
+    assert clip.frame_duration == 3
+    bpy.data.movieclips.remove(clip)
+
+
+def test_blender_b_renders_a_blend_with_apply_on_render(scene, tmp_path, extension_zip):
+    """``blender -b scene.blend -a`` with the extension installed from its zip (bpy module)."""
+    scene.sss_settings.warmup_frames = 1
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}  # here, for comparison
+    here = _frame_paths(scene)
+    scene.render.filepath = str(tmp_path / "farm" / "f_")
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
+    run = subprocess.run(
+        [
+            sys.executable,
+            str(Path(__file__).with_name("native_check.py")),
+            str(extension_zip),
+            str(tmp_path / "work"),
+            str(blend),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=600,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
+    report = json.loads(line.removeprefix("REPORT "))
+    assert report["install"] == ["FINISHED"] and report["render"] == ["FINISHED"]
+    assert report["apply_on_render"] and report["scenes"] == ["Scene"]
+    assert report["file_format"] == "PNG"
+    # Quiet, useful progress: one line per frame, no word of the temporary pass files.
+    lines = run.stdout.splitlines()
+    assert [ln.split()[1:3] for ln in lines if ln.startswith("cvsss: frame")] == [
+        ["frame", "1"],
+        ["frame", "2"],
+        ["frame", "3"],
+    ]
+    assert not [ln for ln in lines if "Saved:" in ln or "cvsss-render-" in ln]
+    for path in here.values():
+        farm = tmp_path / "farm" / path.name
+        assert np.abs(_image_pixels(farm) - _image_pixels(path)).max() <= 1 / 255 + 1e-6
+
+
+@pytest.mark.slow
+def test_eevee_passes_on_one_frame(scene, tmp_path):
+    """The same path with EEVEE (software GL here: most of the time is shader compilation)."""
+    scene.render.engine = "BLENDER_EEVEE"
+    scene.frame_start = scene.frame_end = 1
+    began = time.perf_counter()
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    print(f"EEVEE, one 48x27 frame with Apply on Render: {time.perf_counter() - began:.1f} s")
+    assert scene.render.engine == "BLENDER_EEVEE"
+    got = _image_pixels(Path(scene.render.frame_path(frame=1)))
+    expected = _reference(scene, tmp_path / "ref", frames=(1, 1), engine="EEVEE")[1]
+    want = _colour_managed(scene, expected, tmp_path / "want.png")
+    assert np.abs(got - want).max() <= 1 / 255 + 1e-6
