@@ -38,6 +38,9 @@ class SSS_PT_render(Panel):
         row = layout.row()
         row.prop(s, "cv_mode")
         row.enabled = method is not None and method.adaptive
+        row = layout.row()
+        row.prop(s, "temporal_mode")
+        row.active = method is not None and method.temporal == "guided"
 
         col = layout.column(align=True)
         col.prop(s, "quality")
