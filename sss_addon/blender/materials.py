@@ -159,11 +159,54 @@ def participating(scene, view_layer=None) -> list:
     return [m for m in scene_materials(scene, view_layer) if participates(m)]
 
 
+def subsurface_weight(material) -> tuple[float, bool]:
+    """(w, linked): the Subsurface Weight of the material's Principled BSDF, in [0, 1].
+
+    A linked (textured) weight is written per pixel by the pass render (value
+    AOV ``cvsss_weight``); its constant is then 1. A material without a
+    Principled BSDF (an override) counts as fully subsurface.
+    """
+    node = _source_node(material)
+    socket = None if node is None else node.inputs.get(WEIGHT)
+    if socket is None:
+        return 1.0, False
+    if socket.is_linked:
+        return 1.0, True
+    return min(max(float(socket.default_value), 0.0), 1.0), False
+
+
+def weight_source(material):
+    """(node tree, output socket) feeding a linked Subsurface Weight, or None."""
+    for tree, node in principled_nodes(getattr(material, "node_tree", None)):
+        socket = node.inputs.get(WEIGHT)
+        if socket is not None and socket.is_linked and node == _source_node(material):
+            return tree, socket.links[0].from_socket
+    return None
+
+
+def unmodelled_inputs(material) -> list[str]:
+    """Warnings for what cvsss reads as a constant although the material textures it."""
+    node = _source_node(material)
+    if node is None:
+        return []
+    out = []
+    for name in (RADIUS, SCALE):
+        socket = node.inputs.get(name)
+        if socket is not None and socket.is_linked:
+            out.append(
+                f"material {material.name!r}: {name} is linked (textured); cvsss uses its "
+                "socket value everywhere, Cycles varies it per point"
+            )
+    return out
+
+
 def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
     """MaterialSpec per participating material; slots 1..K in the given order.
 
     A chosen measured preset travels in ``options`` (name, scale and the
-    scene's millimetres per unit) so the core can build its dipole profile.
+    scene's millimetres per unit) so the core can build its dipole profile;
+    ``weight`` is the Subsurface Weight (``options["weight_linked"]`` when it is
+    linked and travels per pixel instead).
     """
     specs = []
     for slot, material in enumerate(materials, 1):
@@ -175,9 +218,16 @@ def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
                 "preset_scale": float(settings.preset_scale),
                 "mm_per_unit": _mm_per_unit(scene),
             }
+        weight, linked = subsurface_weight(material)
+        if linked:
+            options["weight_linked"] = True
         specs.append(
             MaterialSpec(
-                slot=slot, name=material.name, d=material_shape(material, scene), options=options
+                slot=slot,
+                name=material.name,
+                d=material_shape(material, scene),
+                options=options,
+                weight=weight,
             )
         )
     return specs

@@ -177,6 +177,9 @@ def engine_identifier(scene, engine: str) -> str:
 #: Value AOV that carries the material slot when the engine has no Material Index pass.
 AOV_NAME = "cvsss_material"
 
+#: Value AOV that carries a linked (textured) Subsurface Weight per pixel.
+WEIGHT_AOV = "cvsss_weight"
+
 NEEDED_PASSES = (
     "use_pass_combined",
     "use_pass_z",
@@ -319,6 +322,7 @@ class PassSetup(SceneSetup):
         self._pass_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
         self._aov = None
+        self._weight_aov = None
         self._aov_nodes: list[tuple[object, str]] = []
 
     def __enter__(self) -> PassSetup:
@@ -352,6 +356,29 @@ class PassSetup(SceneSetup):
             material.pass_index = slot
         if self.engine != "CYCLES":
             self._add_material_aov()
+        self._add_weight_aovs()
+
+    def _add_weight_aovs(self) -> None:
+        """Write each linked Subsurface Weight to the value AOV ``cvsss_weight``.
+
+        Runs before the weights are forced to 0, while their links still
+        exist; the core reads the AOV on those materials' pixels.
+        """
+        for material in self.materials:
+            source = sss_materials.weight_source(material)
+            if source is None:
+                continue
+            tree, from_socket = source
+            layer = self.view_layer
+            if not any(aov.name == WEIGHT_AOV for aov in layer.aovs):
+                aov = layer.aovs.add()
+                aov.name = WEIGHT_AOV
+                aov.type = "VALUE"
+                self._weight_aov = aov
+            node = tree.nodes.new("ShaderNodeOutputAOV")
+            self._aov_nodes.append((tree, node.name))
+            node.aov_name = WEIGHT_AOV
+            tree.links.new(from_socket, node.inputs["Value"])
 
     def _add_material_aov(self) -> None:
         """EEVEE: write each material's slot to the value AOV ``cvsss_material``."""
@@ -374,9 +401,11 @@ class PassSetup(SceneSetup):
             if node is not None:
                 tree.nodes.remove(node)
         self._aov_nodes = []
-        if self._aov is not None:
-            self.view_layer.aovs.remove(self._aov)
-            self._aov = None
+        for name in ("_aov", "_weight_aov"):
+            aov = getattr(self, name)
+            if aov is not None:
+                self.view_layer.aovs.remove(aov)
+                setattr(self, name, None)
         if self._sss is not None:
             self._sss.restore()
             self._sss = None

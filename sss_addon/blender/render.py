@@ -33,6 +33,7 @@ so switching either starts the post-process over (the passes are kept).
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -304,6 +305,9 @@ def prepare(
         sss_materials.material_specs(mats, scene)
     except ValueError as exc:
         raise RenderError(str(exc)) from None
+    for material in mats:
+        for text in sss_materials.unmodelled_inputs(material):
+            print(f"warning: {text}", file=sys.stderr)
     out = Path(out).expanduser().absolute()
     _check_writable(out / "passes")
     if ground_truth:
