@@ -13,7 +13,8 @@ Layout written under ``out``::
     out/metrics.csv                 one row per frame and method (METRICS_FIELDS)
 
 History is carried from frame to frame per method, so frames are processed in
-order. Two quality figures per frame and method (core.eval.metrics):
+order. ``pass_ms`` is the wall time of the sampling step, ``frame_ms`` of the
+method's whole post-process of the frame (ms, this machine). Two quality figures per frame and method (core.eval.metrics):
 
 ``psnr_db``
     *self-referenced*: luminance PSNR over SSS pixels of the composite against
@@ -85,6 +86,7 @@ METRICS_FIELDS = (
     "method",
     "spp",
     "pass_ms",
+    "frame_ms",
     "psnr_db",
     "psnr_gt_db",
     "psnr_gt_full_db",
@@ -568,6 +570,7 @@ class SequenceRun:
                 "method": run.name,
                 "spp": _fmt(result.spp),
                 "pass_ms": _fmt(result.pass_ms, 3),
+                "frame_ms": _fmt(result.total_ms, 3),
                 "psnr_db": _fmt(value, 3),
             }
             if ground_truth is not None:
@@ -796,7 +799,13 @@ def run_folder(
             f"warning: {os.fspath(passes)}: frames {format_frame_ranges(missing)} are missing; "
             "the history is carried across the gaps as if the frames were consecutive"
         )
-    spec = dataclasses.replace(spec, source=os.fspath(passes.resolve()))
+    # The folder and its first frame's file: frames rendered again (other size,
+    # other scene) make another source, so "continue" starts over; frames
+    # added at the end keep it, so a run resumes into them.
+    first = frames[0][1].stat()
+    source = f"{os.fspath(passes.resolve())} ({frames[0][1].name}: {first.st_size} bytes, "
+    source += f"mtime {first.st_mtime_ns})"
+    spec = dataclasses.replace(spec, source=source)
     run = SequenceRun(out, spec, [n for n, _ in frames], existing=existing, log=log)
     shape = first = None
     for number, path in frames:

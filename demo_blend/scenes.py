@@ -31,7 +31,8 @@ flash
 regular
     The same kind of table lit by an area light switched on and off every
     3 s (off at t = 1 s, 7 s, …; on at t = 4 s, 10 s, …) and three
-    flickering candles of wax with point lights at their flames.
+    flickering candles of wax (Subsurface Weight 0.5: half diffuse, half
+    subsurface) with point lights at their flames.
 boids
     A marble table top with a candle in the middle, 48 bird-sized boid
     particles (Blender's BOIDS physics) flocking around the flame under a
@@ -325,9 +326,11 @@ def skin_material(name: str = "cvsss Skin"):
     return preset_material(name, "skin1", roughness=0.45)
 
 
-def wax_material(name: str = "cvsss Wax"):
-    """Candle wax: pale, strongly scattering, d ∝ (1, 0.8, 0.5)."""
-    return sss_material(name, (0.92, 0.86, 0.72), (D_MAX, 0.8 * D_MAX, 0.5 * D_MAX), 0.35)
+def wax_material(name: str = "cvsss Wax", weight: float = 1.0):
+    """Candle wax: pale, strongly scattering, d ∝ (1, 0.8, 0.5); Subsurface Weight ``weight``."""
+    material = sss_material(name, (0.92, 0.86, 0.72), (D_MAX, 0.8 * D_MAX, 0.5 * D_MAX), 0.35)
+    material.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value = weight
+    return material
 
 
 def diffuse_material(name: str, color: tuple[float, float, float]):
@@ -536,7 +539,8 @@ def _build_regular(scene, collection, frames: int) -> None:
     _suzanne("regular Suzanne", collection, skin, (-0.22, 0.1, 0.02), turn=20.0)
     _sphere("regular Marble", collection, 0.09, marble, (0.34, 0.18, 0.11))
 
-    wax = wax_material()
+    # Half-subsurface wax (Subsurface Weight 0.5): Cycles mixes diffuse and subsurface.
+    wax = wax_material(weight=0.5)
     flame = emission_material("cvsss Flame", (1.0, 0.6, 0.25), 30.0)
     for i, (x, y, h, r) in enumerate(
         ((0.05, -0.12, 0.12, 0.028), (0.2, -0.0, 0.18, 0.032), (-0.45, -0.04, 0.1, 0.03))

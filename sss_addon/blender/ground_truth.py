@@ -60,6 +60,9 @@ class GroundTruthSetup(SceneSetup):
         The only view layer rendered (Combined pass only).
     samples : int, samples per pixel, 1 … :data:`MAX_SAMPLES`
     method : {"BURLEY", "RANDOM_WALK"}
+    denoise : bool
+        Denoise with Cycles' OpenImageDenoise (albedo and normal guides): not
+        a ground truth, the equal-time comparison's "Cycles + OIDN".
     """
 
     def __init__(
@@ -69,11 +72,13 @@ class GroundTruthSetup(SceneSetup):
         view_layer,
         samples: int = DEFAULT_SAMPLES,
         method: str = "BURLEY",
+        denoise: bool = False,
     ) -> None:
         super().__init__(scene, view_layer)
         self.materials = list(materials)
         self.samples = int(samples)
         self.method = method
+        self.denoise = bool(denoise)
         self._nodes: list[tuple[object, dict]] = []
 
     def _apply(self) -> None:
@@ -91,8 +96,13 @@ class GroundTruthSetup(SceneSetup):
                 setattr(c, name, type(getattr(c, name))(0))
         c.seed = SEED
         c.use_animated_seed = False
-        c.use_denoising = False
+        c.use_denoising = self.denoise
+        if self.denoise:
+            c.denoiser = "OPENIMAGEDENOISE"
+            c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
         self._only_layer(lambda ident: ident == "use_pass_combined")
+        if self.denoise and getattr(self.view_layer, "cycles", None) is not None:
+            self.view_layer.cycles.use_denoising = True
         seen = set()
         for material in self.materials:
             for _, node in sss_materials.principled_nodes(material.node_tree):
@@ -115,7 +125,7 @@ def ground_truth_path(folder: Path, frame: int) -> Path:
     return Path(folder) / f"{frame:04d}.exr"
 
 
-def _record(frame: int, samples: int, method: str, view_layer: str) -> dict:
+def _record(frame: int, samples: int, method: str, view_layer: str, denoise: bool = False) -> dict:
     return {
         "format": RECORD_FORMAT,
         "frame": int(frame),
@@ -123,7 +133,7 @@ def _record(frame: int, samples: int, method: str, view_layer: str) -> dict:
         "subsurface_method": method,
         "samples": int(samples),
         "seed": SEED,
-        "denoised": False,
+        "denoised": bool(denoise),
         "view_layer": view_layer,
     }
 
@@ -149,8 +159,11 @@ def render_ground_truth(
     view_layer,
     samples: int = DEFAULT_SAMPLES,
     method: str = "BURLEY",
+    denoise: bool = False,
 ) -> Path:
     """Render the ground truth of ``frame`` to ``<folder>/####.exr`` (+ ``.json``).
+
+    ``denoise`` renders Cycles + OIDN instead (the equal-time comparison).
 
     The record is written first and the EXR rendered to a temporary name
     that is renamed into place (an older EXR is removed before), so the
@@ -162,10 +175,10 @@ def render_ground_truth(
     """
     path = ground_truth_path(folder, frame)
     scene.frame_set(frame)
-    with GroundTruthSetup(scene, materials, view_layer, samples, method):
+    with GroundTruthSetup(scene, materials, view_layer, samples, method, denoise):
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
-        record = _record(frame, samples, method, view_layer.name)
+        record = _record(frame, samples, method, view_layer.name, denoise)
         write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
         render_to(scene, path)
     return path

@@ -170,6 +170,9 @@ def subsurface_weight(material) -> tuple[float, bool]:
     socket = None if node is None else node.inputs.get(WEIGHT)
     if socket is None:
         return 1.0, False
+    saved = _DISABLED.get(node.as_pointer())
+    if saved is not None:  # forced to 0 for a pass render: the user's value counts
+        return (1.0, True) if saved.links else (min(max(saved.value, 0.0), 1.0), False)
     if socket.is_linked:
         return 1.0, True
     return min(max(float(socket.default_value), 0.0), 1.0), False
@@ -251,6 +254,10 @@ def _fcurves(anim) -> Iterator:
         yield from action.fcurves
 
 
+#: Principled nodes whose weight SSSDisabled holds at 0: node pointer -> saved state.
+_DISABLED: dict[int, _SavedSocket] = {}
+
+
 @dataclass
 class _SavedSocket:
     node_tree: object
@@ -284,6 +291,7 @@ class SSSDisabled(contextlib.AbstractContextManager):
                         [link.from_socket for link in socket.links],
                     )
                     self.saved.append(saved)
+                    _DISABLED.setdefault(node.as_pointer(), saved)
                     for fcurve in _fcurves(tree.animation_data):
                         if fcurve.data_path == path:
                             saved.muted.append((fcurve, fcurve.mute))
@@ -300,7 +308,10 @@ class SSSDisabled(contextlib.AbstractContextManager):
         # Reverse order: a node group shared by two materials is saved twice,
         # and the first record holds the original state.
         for saved in reversed(self.saved):
-            socket = saved.node_tree.nodes[saved.node].inputs[WEIGHT]
+            node = saved.node_tree.nodes[saved.node]
+            if _DISABLED.get(node.as_pointer()) is saved:
+                del _DISABLED[node.as_pointer()]
+            socket = node.inputs[WEIGHT]
             socket.default_value = saved.value
             for from_socket in saved.links:
                 if not any(link.from_socket == from_socket for link in socket.links):

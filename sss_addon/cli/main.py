@@ -180,6 +180,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=16,
         help="render samples per pixel of the blender passes (default 16)",
     )
+    demo.add_argument(
+        "--ground-truth-every",
+        type=int,
+        default=20,
+        metavar="K",
+        help="render Cycles ground truth (subsurface on) on every K-th frame and measure "
+        "every method against it, with the equal-time comparison (default 20; 0: off; "
+        "blender source with Cycles only)",
+    )
+    demo.add_argument(
+        "--ground-truth-spp",
+        type=int,
+        default=1024,
+        help="samples per pixel of the ground truth (default 1024)",
+    )
     demo.add_argument("--overwrite", action="store_true", help="make the passes again")
     add_arguments(demo)
 
@@ -441,6 +456,12 @@ def _demo(args: argparse.Namespace) -> int:
     _check_at_least_one("--reference-every", args.reference_every)
     _check_at_least_one("--samples", args.samples)
     _check_at_least_one("--frames", args.frames)
+    _check_at_least_one("--ground-truth-spp", args.ground_truth_spp)
+    if args.ground_truth_every < 0:
+        raise UserError(f"--ground-truth-every must be >= 0, got {args.ground_truth_every}")
+    from .truth import TruthPlan
+
+    truth = TruthPlan(every=args.ground_truth_every, samples=args.ground_truth_spp)
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))
         if width < 1 or height < 1:
@@ -461,6 +482,7 @@ def _demo(args: argparse.Namespace) -> int:
             engine=args.engine,
             samples=args.samples,
             reference_every=args.reference_every,
+            truth=truth,
         )
     except DemoError as exc:
         raise UserError(str(exc)) from None

@@ -25,7 +25,14 @@ from ...core.eval.color import srgb_encode
 from ...core.eval.metrics import median3
 from ...core.io.exr import read_result
 
-ADAPTIVE = (("as", "AS"), ("as_ocv", "AS + OCV"), ("as_ccv", "AS + CCV"))
+ADAPTIVE = (
+    ("as", "AS"),
+    ("as_ocv", "AS + OCV"),
+    ("as_ccv", "AS + CCV"),
+    ("as_ccv_t", "AS + CCV + temporal"),
+)
+#: Methods also drawn in the PSNR panels (no sample-count curve of interest).
+BASELINES = (("none", "no SSS"), ("separable", "separable"))
 
 
 def _pyplot():
@@ -38,7 +45,7 @@ def _pyplot():
 
 
 def read_metrics(path: Path) -> dict[str, dict[str, np.ndarray]]:
-    """``{method: {"frame", "spp", "pass_ms", "psnr_db"}}`` arrays from a metrics.csv."""
+    """``{method: {"frame", "spp", "pass_ms", "psnr_db", "psnr_gt_db"}}`` arrays (NaN: absent)."""
     cols: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     with open(path, newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
@@ -46,26 +53,38 @@ def read_metrics(path: Path) -> dict[str, dict[str, np.ndarray]]:
             c["frame"].append(int(row["frame"]))
             c["spp"].append(float(row["spp"]))
             c["pass_ms"].append(float(row["pass_ms"]))
-            c["psnr_db"].append(float(row["psnr_db"]) if row["psnr_db"] else np.nan)
+            for key in ("psnr_db", "psnr_gt_db"):
+                c[key].append(float(row[key]) if row.get(key) else np.nan)
     return {m: {k: np.asarray(v) for k, v in c.items()} for m, c in cols.items()}
 
 
 def plot_frames(metrics: dict, path: Path, title: str) -> Path:
-    """Per-frame spp, pass time (3rd-order median) and PSNR of the adaptive methods."""
+    """Per-frame spp, pass time (3rd-order median), PSNR against our reference and
+    (when rendered) against Cycles ground truth, of the adaptive methods and baselines."""
     plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), sharex=True)
-    for name, label in ADAPTIVE:
+    with_gt = any(np.isfinite(m["psnr_gt_db"]).any() for m in metrics.values())
+    rows = 4 if with_gt else 3
+    fig, axes = plt.subplots(rows, 1, figsize=(7.5, 2.4 * rows), sharex=True)
+    for name, label in ADAPTIVE + BASELINES:
         if name not in metrics:
             continue
         m = metrics[name]
-        axes[0].plot(m["frame"], m["spp"], label=label)
-        axes[1].plot(m["frame"], median3(m["pass_ms"]), label=label)
+        if (name, label) in ADAPTIVE:
+            axes[0].plot(m["frame"], m["spp"], label=label)
+            axes[1].plot(m["frame"], median3(m["pass_ms"]), label=label)
         ok = np.isfinite(m["psnr_db"])
-        axes[2].plot(m["frame"][ok], m["psnr_db"][ok], ".-", label=label)
+        style = "--" if (name, label) in BASELINES else ".-"
+        axes[2].plot(m["frame"][ok], m["psnr_db"][ok], style, label=label)
+        if with_gt:
+            ok = np.isfinite(m["psnr_gt_db"])
+            axes[3].plot(m["frame"][ok], m["psnr_gt_db"][ok], style.replace(".", "o"), label=label)
     axes[0].set_ylabel("mean spp (SSS pixels)")
     axes[1].set_ylabel("sampling pass (ms)")
-    axes[2].set_ylabel("PSNR vs reference (dB)")
-    axes[2].set_xlabel("frame (60 fps)")
+    axes[2].set_ylabel("PSNR vs our reference (dB)")
+    if with_gt:
+        axes[3].set_ylabel("PSNR vs Cycles GT (dB)")
+        axes[3].legend(loc="lower right", fontsize=7)
+    axes[-1].set_xlabel("frame (60 fps)")
     axes[0].legend(loc="upper right")
     axes[0].set_title(title)
     for ax in axes:

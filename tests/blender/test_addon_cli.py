@@ -154,6 +154,7 @@ def test_render_sequence_api_uses_current_scene(demo, tmp_path):
             "method": "fixed",
             "spp": rows[0]["spp"],
             "pass_ms": rows[0]["pass_ms"],
+            "frame_ms": rows[0]["frame_ms"],
             "psnr_db": "",
         }
     ]

@@ -97,7 +97,7 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
             for layer in layers:
                 np.testing.assert_array_equal(written[layer], again[layer], err_msg=layer)
     cli_rows = list(csv.DictReader(open(cli_out / "metrics.csv")))
-    drop = ("pass_ms",)
+    drop = ("pass_ms", "frame_ms")
     assert [{k: v for k, v in r.items() if k not in drop} for r in rows] == [
         {k: v for k, v in r.items() if k not in drop} for r in cli_rows
     ]

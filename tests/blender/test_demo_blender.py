@@ -12,6 +12,7 @@ from cvsss.core.io.exr import read_frame  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
 from cvsss.sss_addon.blender import materials  # noqa: E402
 from cvsss.sss_addon.cli import main as cli  # noqa: E402
+from cvsss.sss_addon.cli.demo import DEMO_METHODS  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -88,6 +89,10 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
         "2",
         "--reference-spp",
         "64",
+        "--ground-truth-every",
+        "2",
+        "--ground-truth-spp",
+        "16",
     ]
     assert cli.main([*args, "--res", "32x18"]) == 0
     scene_dir = out / "regular"
@@ -99,9 +104,17 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     stamp = json.loads((scene_dir / "demo.json").read_text())
     assert stamp["width"] == 32 and stamp["samples"] == 2 and stamp["engine"] == "CYCLES"
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["regular"]) == {"as", "as_ocv", "as_ccv", "fixed", "separable", "reference"}
+    assert set(summary["regular"]) == set(DEMO_METHODS)
     rows = list(csv.DictReader(open(scene_dir / "metrics.csv")))
     assert [int(r["frame"]) for r in rows if r["method"] == "reference"] == [1, 3]
+    # Cycles ground truth on frames 1 and 3, measured against in the rows of those frames.
+    assert sorted(p.name for p in (scene_dir / "ground_truth").glob("*.exr")) == [
+        "0001.exr",
+        "0003.exr",
+    ]
+    with_gt = sorted({int(r["frame"]) for r in rows if r["psnr_gt_db"]})
+    assert with_gt == [1, 3]
+    assert "Against Cycles ground truth" in (out / "report.md").read_text()
     assert "regular: per frame" in (out / "report.md").read_text()
 
     # Same settings: the pass frames are reused, the methods recomputed.
