@@ -12,7 +12,7 @@ import bpy
 from bpy.types import Operator
 
 from ..sss_addon.blender import native
-from .sequence import _message
+from .sequence import _message, status
 
 
 class SSS_OT_finish_render(Operator):
@@ -46,9 +46,7 @@ class SSS_OT_finish_render(Operator):
         return {"RUNNING_MODAL"}
 
     def _status(self, context, text):
-        workspace = getattr(context, "workspace", None)
-        if workspace is not None:
-            workspace.status_text_set(text)
+        status(context, text)
 
     def _stop(self, context):
         context.window_manager.event_timer_remove(self._timer)

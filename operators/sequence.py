@@ -35,6 +35,13 @@ def _message(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
+def status(context, text: str | None) -> None:
+    """Show ``text`` in the status bar (None clears it)."""
+    workspace = getattr(context, "workspace", None)
+    if workspace is not None:
+        workspace.status_text_set(text)
+
+
 class _SteppedOperator:
     """Mixin: run ``self.steps(context)`` (job, generator) to the end or modally."""
 
@@ -80,9 +87,7 @@ class _SteppedOperator:
         return {"RUNNING_MODAL"}
 
     def _status(self, context, text):
-        workspace = getattr(context, "workspace", None)
-        if workspace is not None:
-            workspace.status_text_set(text)
+        status(context, text)
 
     def _stop(self, context):
         wm = context.window_manager

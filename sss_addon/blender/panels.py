@@ -10,19 +10,27 @@ from .native import native_notes
 from .properties import QUALITY_METHODS, param_properties
 
 
-class SSS_PT_render(Panel):
-    bl_label = "Screen-Space Subsurface (cvsss)"
-    bl_idname = "SSS_PT_render"
+class _RenderPanel:
+    """Properties ▸ Render panels: location and the split layout."""
+
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
     bl_context = "render"
     bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
 
-    def draw(self, context):
+    def _layout(self, context):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        s = context.scene.sss_settings
+        return layout, context.scene.sss_settings
+
+
+class SSS_PT_render(_RenderPanel, Panel):
+    bl_label = "Screen-Space Subsurface (cvsss)"
+    bl_idname = "SSS_PT_render"
+
+    def draw(self, context):
+        layout, s = self._layout(context)
         method = METHODS.get(s.method)
 
         col = layout.column()
@@ -127,22 +135,15 @@ class SSS_PT_render(Panel):
             box.label(text="No frame processed yet")
 
 
-class SSS_PT_render_advanced(Panel):
+class SSS_PT_render_advanced(_RenderPanel, Panel):
     """Every parameter the command line takes that the main panel does not show."""
 
     bl_label = "Advanced"
     bl_idname = "SSS_PT_render_advanced"
     bl_parent_id = "SSS_PT_render"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        s = context.scene.sss_settings
+        layout, s = self._layout(context)
         layout.prop(s, "profile")
         col = layout.column(align=True)
         for name, (_, _, spec) in param_properties().items():

@@ -1,5 +1,6 @@
 """Unified direct/distant estimator: invariants, unbiasedness, fallbacks, bad input."""
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -135,21 +136,7 @@ def test_bad_values_never_leak(bad):
     frame.lighting[10:14, 10:30] = bad
     frame.lighting[20, :] = bad
     frame.depth[5:8, 20:24] = bad
-    frame = type(frame)(
-        **{
-            k: getattr(frame, k)
-            for k in (
-                "number",
-                "lighting",
-                "albedo",
-                "combined",
-                "depth",
-                "material",
-                "camera",
-                "materials",
-            )
-        }
-    )
+    frame = dataclasses.replace(frame)  # validates (and repairs) the bad values again
     p = SSSParams()
     for method in ("fixed", "as", "as_ocv", "as_ccv"):
         proc = make_processor(method, p)

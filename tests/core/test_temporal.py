@@ -6,6 +6,8 @@ errors of the composite's luminance over SSS pixels against a 4096-spp
 reference of the same frame (its own error is below 2 % of the errors measured).
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -21,16 +23,8 @@ FIXED16 = {"beta_min": 16, "beta_max": 16}  # counts fixed: errors compare like 
 
 def scaled(frame: Frame, factor: float, number: int) -> Frame:
     """The same frame with its lighting (and Combined) scaled by ``factor``."""
-    return Frame(
-        number=number,
-        lighting=frame.lighting * factor,
-        albedo=frame.albedo,
-        combined=frame.combined * factor,
-        depth=frame.depth,
-        material=frame.material,
-        camera=frame.camera,
-        materials=frame.materials,
-        motion=frame.motion,
+    return dataclasses.replace(
+        frame, number=number, lighting=frame.lighting * factor, combined=frame.combined * factor
     )
 
 
@@ -145,17 +139,7 @@ def test_disocclusion_resets_the_accumulation():
     motion = np.zeros((H, W, 2), np.float32)
     motion[gone] = np.nan  # unknown motion: the surface came from nowhere we know
     last = frames[-1]
-    frames[-1] = Frame(
-        number=last.number,
-        lighting=last.lighting,
-        albedo=last.albedo,
-        combined=last.combined,
-        depth=last.depth,
-        material=last.material,
-        camera=last.camera,
-        materials=last.materials,
-        motion=motion,
-    )
+    frames[-1] = dataclasses.replace(last, motion=motion)
     plain, reuse = make_processor("as_ccv"), make_processor("as_ccv_t")
     for f in frames:
         a, b = plain.process(f), reuse.process(f)

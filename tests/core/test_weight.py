@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cvsss.core import SSSParams, make_processor
-from cvsss.core.frame import Frame, MaterialSpec
+from cvsss.core.frame import MaterialSpec
 from cvsss.core.synthetic import scene_frame
 
 
@@ -14,17 +14,7 @@ def with_weight(frame, weights: dict, sss_weight=None):
     materials = {
         s: dataclasses.replace(m, weight=weights.get(s, 1.0)) for s, m in frame.materials.items()
     }
-    return Frame(
-        number=frame.number,
-        lighting=frame.lighting,
-        albedo=frame.albedo,
-        combined=frame.combined,
-        depth=frame.depth,
-        material=frame.material,
-        camera=frame.camera,
-        materials=materials,
-        sss_weight=sss_weight,
-    )
+    return dataclasses.replace(frame, materials=materials, sss_weight=sss_weight)
 
 
 def test_constant_weight_mixes_diffuse_and_subsurface():
