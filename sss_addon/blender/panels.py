@@ -18,11 +18,12 @@ class _RenderPanel:
     bl_context = "render"
     bl_options = {"DEFAULT_CLOSED"}  # noqa: RUF012
 
-    def _layout(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        return layout, context.scene.sss_settings
+
+def _split(layout):
+    """``layout`` set up as Blender's property panels draw (labels left, no decorators)."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
 
 
 class SSS_PT_render(_RenderPanel, Panel):
@@ -30,7 +31,7 @@ class SSS_PT_render(_RenderPanel, Panel):
     bl_idname = "SSS_PT_render"
 
     def draw(self, context):
-        layout, s = self._layout(context)
+        layout, s = _split(self.layout), context.scene.sss_settings
         method = METHODS.get(s.method)
 
         col = layout.column()
@@ -143,7 +144,7 @@ class SSS_PT_render_advanced(_RenderPanel, Panel):
     bl_parent_id = "SSS_PT_render"
 
     def draw(self, context):
-        layout, s = self._layout(context)
+        layout, s = _split(self.layout), context.scene.sss_settings
         layout.prop(s, "profile")
         col = layout.column(align=True)
         for name, (_, _, spec) in param_properties().items():
@@ -166,11 +167,9 @@ class SSS_PT_material(Panel):
         return getattr(context, "material", None) is not None
 
     def draw(self, context):
-        layout = self.layout
+        layout = _split(self.layout)
         material = context.material
         m = material.sss_material
-        layout.use_property_split = True
-        layout.use_property_decorate = False
         layout.prop(m, "mode")
         row = layout.row()
         row.enabled = False
