@@ -10,12 +10,14 @@ OUT    ?= out
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt pyproject.toml
+$(STAMP): requirements.txt requirements-farm.txt pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "Python 3.11 is required (bpy 5.0.1), found " + sys.version' \
 		|| (echo "error: Python 3.11 is required; set PYTHON=/path/to/python3.11" >&2; exit 2)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.txt
+	# The farm extra (cvsss[farm]: Dask distributed, openjd-cli), pinned, for its tests.
+	$(BIN)/python -m pip install --quiet -r requirements-farm.txt
 	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 
@@ -48,8 +50,9 @@ cv1d: $(STAMP)
 fig2: $(STAMP)
 	$(BIN)/cvsss fig2 --out $(OUT)
 
-# Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, ~5 min on
-# 2 cores. `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
+# Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, ~9 min on
+# 2 cores, of which 3.5 min are the tiled post on 1 and 2 Dask workers at 1280x720 (section
+# workers, issue 16). `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
 bench: $(STAMP)
 	$(BIN)/cvsss bench --out $(OUT)/bench
 

@@ -90,6 +90,34 @@ class MaterialSpec:
         )
 
 
+@dataclass(frozen=True)
+class Crop:
+    """Where the passes of a cropped frame (an image tile with its halo) sit in the image.
+
+    A cropped frame keeps the whole image's camera (principal point, footprint)
+    and its pixels keep their image coordinates, which seed the per-pixel
+    random streams: processing a crop gives, on the pixels far enough from its
+    edges, the values the whole image gives (core.tiling).
+
+    Attributes
+    ----------
+    image : (H, W), pixels of the whole image (the camera's resolution)
+    origin : (y, x), image coordinates of the crop's top-left pixel
+    core : (y0, y1, x0, x1), image coordinates, end exclusive: the pixels this
+        crop answers for (its tile); the frame-level figures of a result
+        (samples, fall-backs, SSS pixel counts) count these pixels only
+    light_scale : (3,) float or None, linear: the per-channel mean of the
+        lighting pass over the whole image's scattering pixels. A per-pixel rule
+        that needs a frame-level yardstick (the temporal reuse's ε) takes it
+        from here, so a tile uses the whole image's value (None: the crop's own).
+    """
+
+    image: tuple[int, int]
+    origin: tuple[int, int]
+    core: tuple[int, int, int, int]
+    light_scale: tuple[float, float, float] | None = None
+
+
 def _clean(name: str, array: np.ndarray, shape: tuple, channels: int | None) -> np.ndarray:
     a = np.asarray(array)
     want = shape if channels is None else (*shape, channels)
@@ -138,6 +166,9 @@ class Frame:
         linked (textured), written by the pass render through an AOV; NaN
         where the material's constant :attr:`MaterialSpec.weight` applies.
         None: every material's constant weight.
+    crop : Crop or None
+        The passes are a crop of the image (a tile with its halo; see
+        core.tiling); None: the whole image, matching the camera.
     """
 
     number: int
@@ -153,13 +184,16 @@ class Frame:
     repaired: int = 0
     lighting_passes: tuple[str, ...] = ()
     sss_weight: np.ndarray | None = None
+    crop: Crop | None = None
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth)
         if depth.ndim != 2 or depth.shape[0] < 1 or depth.shape[1] < 1:
             raise ValueError(f"pass 'depth' must be a 2D image, got shape {depth.shape}")
         shape = depth.shape
-        if (self.camera.height, self.camera.width) != shape:
+        if self.crop is not None:
+            self._check_crop(shape)
+        elif (self.camera.height, self.camera.width) != shape:
             raise ValueError(
                 f"camera resolution {self.camera.width}x{self.camera.height} does not match "
                 f"the passes ({shape[1]}x{shape[0]})"
@@ -205,10 +239,37 @@ class Frame:
                 raise ValueError(f"material table key {slot} does not match slot {spec.slot}")
         self.repaired = repaired
 
+    def _check_crop(self, shape: tuple[int, int]) -> None:
+        crop = self.crop
+        image = (self.camera.height, self.camera.width)
+        (oy, ox), (y0, y1, x0, x1) = crop.origin, crop.core
+        if tuple(crop.image) != image:
+            raise ValueError(
+                f"crop of a {crop.image[1]}x{crop.image[0]} image but the camera renders "
+                f"{image[1]}x{image[0]}"
+            )
+        if not (0 <= oy and 0 <= ox and oy + shape[0] <= image[0] and ox + shape[1] <= image[1]):
+            raise ValueError(
+                f"crop {shape[1]}x{shape[0]} at (x {ox}, y {oy}) does not fit the "
+                f"{image[1]}x{image[0]} image"
+            )
+        if not (oy <= y0 < y1 <= oy + shape[0] and ox <= x0 < x1 <= ox + shape[1]):
+            raise ValueError(f"crop core {crop.core} is not a non-empty part of the crop")
+
     @property
     def shape(self) -> tuple[int, int]:
-        """(H, W) in pixels."""
+        """(H, W) in pixels (of the crop, for a cropped frame)."""
         return self.depth.shape
+
+    @property
+    def origin(self) -> tuple[int, int]:
+        """(y, x) image coordinates of pixel (0, 0) of the passes."""
+        return (0, 0) if self.crop is None else tuple(self.crop.origin)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """(H, W) of the whole image (the camera's resolution)."""
+        return (self.camera.height, self.camera.width)
 
     @property
     def surface(self) -> np.ndarray:

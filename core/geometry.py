@@ -64,16 +64,18 @@ class Surface:
     area: np.ndarray
 
 
-def positions(camera, depth: np.ndarray) -> np.ndarray:
+def positions(camera, depth: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
     """(H, W, 3) float64 camera-space points of the depth buffer (x right, y down, z depth).
 
     Pixel centres sit at integer coordinates; background (inf depth) gives inf.
+    ``origin`` (y, x) is the image position of ``depth[0, 0]`` (a crop).
     """
     h, w = depth.shape
     wu, hu = camera.unit_footprint()
     cx, cy = camera.principal_point
     z = np.asarray(depth, dtype=np.float64)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    oy, ox = origin
+    yy, xx = np.mgrid[oy : oy + h, ox : ox + w].astype(np.float64)
     scale = np.ones_like(z) if camera.type == "ORTHO" else z
     with np.errstate(invalid="ignore"):
         return np.stack([(xx - cx) * wu * scale, (yy - cy) * hu * scale, z], axis=-1)
@@ -85,7 +87,7 @@ def surface(frame: Frame) -> Surface:
     wu, hu = cam.unit_footprint()
     ortho = cam.type == "ORTHO"
     z = frame.depth.astype(np.float64)
-    p = positions(cam, frame.depth)
+    p = positions(cam, frame.depth, frame.origin)
     flat = (wu * hu) * (np.ones_like(z) if ortho else z * z)
 
     def tangent(axis: int) -> np.ndarray:
@@ -157,11 +159,16 @@ class Geometry:
     All per-pixel arrays have leading length P (number of SSS pixels), in
     row-major order of the image.
 
+    For a cropped frame (:class:`core.frame.Crop`), ``shape`` and ``index``
+    address the crop's arrays while ``x``, ``y`` are image coordinates (they
+    seed the per-pixel streams and place samples, so a crop computes what
+    the whole image computes).
+
     Attributes
     ----------
-    shape : (H, W)
-    index : (P,) int64, flat pixel index ``y·W + x``
-    x, y : (P,) int64, column and row
+    shape : (H, W) of the frame's arrays
+    index : (P,) int64, flat pixel index ``y·W + x`` into the frame's arrays
+    x, y : (P,) int64, column and row in the image
     mat : (P,) int32, compact material slot
     slots : (H·W,) int32, compact slot of every pixel (0: no subsurface)
     depth : (P,) float64, scene units
@@ -174,6 +181,10 @@ class Geometry:
     weight : (P,) float64, Subsurface Weight w in [0, 1] (the material's, or the
         pixel's where the frame carries a per-pixel weight)
     surface : Surface or None, for surface-distance weights (None: planar radius)
+    origin : (y, x), image coordinates of the frame's pixel (0, 0) (a crop's origin)
+    image : (H, W) of the whole image, or None (the frame is the whole image)
+    core : (P,) bool or None, the pixels inside a crop's core (None: all): the
+        frame-level figures (samples, fall-backs) count these only
     """
 
     shape: tuple[int, int]
@@ -193,6 +204,14 @@ class Geometry:
     chromatic: np.ndarray
     weight: np.ndarray | None = None
     surface: Surface | None = None
+    origin: tuple[int, int] = (0, 0)
+    image: tuple[int, int] | None = None
+    core: np.ndarray | None = None
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """(H, W) of the whole image (pixels outside it are off screen)."""
+        return self.shape if self.image is None else self.image
 
     @cached_property
     def gamma_sum(self) -> np.ndarray:
@@ -225,7 +244,33 @@ class Geometry:
         return out.reshape(*self.shape, *values.shape[1:])
 
 
-def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> Geometry:
+def light_scale(frame: Frame, profile: Profile) -> np.ndarray:
+    """(3,) float64, linear: mean lighting pass over the scattering pixels of ``frame``.
+
+    The frame-level yardstick of per-pixel rules (the temporal reuse's ε). A
+    crop carries its whole image's value (:attr:`core.frame.Crop.light_scale`)
+    so that tiles use the same one; a whole frame computes it here. Floored at
+    1e-12 per channel (a black frame).
+    """
+    if frame.crop is not None and frame.crop.light_scale is not None:
+        return np.asarray(frame.crop.light_scale, dtype=np.float64)
+    slots = compact_slots(frame.material.reshape(-1), slot_keys(frame.materials))
+    scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
+    scatters[: profile.n_slots] = profile.scatters()
+    ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(frame.depth.reshape(-1))
+    ok[ok] = scatters[slots[ok]]
+    lighting = frame.lighting.reshape(-1, 3)[ok].astype(np.float64)
+    mean = lighting.mean(axis=0) if lighting.size else np.zeros(3)
+    return np.maximum(mean, 1e-12)
+
+
+def prepare(
+    frame: Frame,
+    profile: Profile,
+    surface_distance: bool = False,
+    core_only: bool = False,
+    margin: int = 0,
+) -> Geometry:
     """Find the SSS pixels of ``frame`` and their footprint, r0, γ and sampling bounds.
 
     Parameters
@@ -237,6 +282,15 @@ def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> G
         Built over the frame's compact slots (see module doc).
     surface_distance : bool
         Also compute the frame's :class:`Surface` (surface-distance weights).
+    core_only : bool
+        For a cropped frame, take the SSS pixels of its core only: the halo
+        then serves as passes to sample (and history to reproject from),
+        without being processed itself. A method whose pixels read other
+        pixels' results (the separable passes) must not ask for it.
+    margin : int
+        With ``core_only``, also take the pixels up to ``margin`` beyond the core
+        (clipped to the window): a method that reads its 3×3 neighbours' own
+        estimates (temporal reuse) needs them computed as the whole image would.
 
     Returns
     -------
@@ -248,6 +302,14 @@ def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> G
     scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
     scatters[: profile.n_slots] = profile.scatters()
     ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(depth_flat)
+    if core_only and frame.crop is not None:
+        (oy, ox), (y0, y1, x0, x1) = frame.crop.origin, frame.crop.core
+        inside = np.zeros((h, w), dtype=bool)
+        inside[
+            max(y0 - oy - margin, 0) : y1 - oy + margin,
+            max(x0 - ox - margin, 0) : x1 - ox + margin,
+        ] = True
+        ok &= inside.reshape(-1)
     ok[ok] = scatters[slots[ok]]
     index = np.flatnonzero(ok).astype(np.int64)
     mat = slots[index]
@@ -256,6 +318,13 @@ def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> G
     r0 = 0.5 * np.sqrt(fw * fw + fh * fh)
     region = profile.region(r0, mat)
     y, x = np.divmod(index, w)
+    core = None
+    if frame.crop is not None:
+        oy, ox = frame.crop.origin
+        y += oy
+        x += ox
+        y0, y1, x0, x1 = frame.crop.core
+        core = (y >= y0) & (y < y1) & (x >= x0) & (x < x1)
     keys = slot_keys(frame.materials)
     weights = np.array([1.0] + [frame.materials[int(k)].weight for k in keys])
     weight = weights[mat]
@@ -280,4 +349,7 @@ def prepare(frame: Frame, profile: Profile, surface_distance: bool = False) -> G
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
         weight=weight,
         surface=surface(frame) if surface_distance and index.size else None,
+        origin=frame.origin,
+        image=None if frame.crop is None else frame.image_shape,
+        core=core,
     )

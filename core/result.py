@@ -44,6 +44,12 @@ class FrameResult:
     distant_share : float, share of SSS pixels with max γ ≥ ε_u
     fallback_share : float, share of samples that fell back to the centre
     repaired : int, input values replaced because non-finite or negative
+    fallback, draws : int, the terms of ``fallback_share``: samples (separable: tap
+        reads) that fell back, of ``draws``
+    distant_pixels : int, SSS pixels with max γ ≥ ε_u (``distant_share`` × SSS pixels)
+
+    The frame-level figures of a cropped frame (core.tiling) count the pixels of
+    its core only, so those of tiles add up to the whole image's.
     """
 
     number: int
@@ -64,6 +70,9 @@ class FrameResult:
     distant_share: float
     fallback_share: float
     repaired: int = 0
+    fallback: int = 0
+    draws: int = 0
+    distant_pixels: int = 0
 
 
 def composite(
@@ -108,7 +117,8 @@ def assemble(
     *,
     eps_u: float,
     samples: int,
-    fallback_share: float,
+    fallback: int,
+    draws: int,
     pass_ms: float,
     total_ms: float,
     update_ms: float = 0.0,
@@ -126,7 +136,7 @@ def assemble(
     counts : (P,) int, samples (or reads) per SSS pixel
     eps_u : float, ε_u of the distant-share statistic
     samples : int, samples taken
-    fallback_share : float, share of them that fell back to the centre
+    fallback, draws : int, samples (or reads) that fell back to the centre, of ``draws``
     pass_ms, total_ms, update_ms : float, wall times (ms)
     alpha, variance : (P,) float, optional (0 where not given)
     valid : (P,) bool, optional (False where not given)
@@ -134,6 +144,11 @@ def assemble(
     n = geom.size
     comp, sss = composite(frame, geom.index, shaded, geom.weight)
     zeros = np.zeros(n)
+    # A crop's frame-level figures are those of its core pixels (core.tiling).
+    core = slice(None) if geom.core is None else geom.core
+    counted = np.asarray(counts)[core]
+    distant = geom.gamma_max[core] >= eps_u
+    pixels = int(distant.size)
     return FrameResult(
         number=frame.number,
         method=method,
@@ -145,12 +160,15 @@ def assemble(
         variance=geom.to_image(zeros if variance is None else variance),
         valid_history=geom.to_image(np.zeros(n, bool) if valid is None else valid, False, bool),
         mask=geom.mask(),
-        spp=float(np.mean(counts)) if n else 0.0,
+        spp=float(np.mean(counted)) if pixels else 0.0,
         samples=int(samples),
         pass_ms=pass_ms,
         update_ms=update_ms,
         total_ms=total_ms,
-        distant_share=float(np.mean(geom.gamma_max >= eps_u)) if n else 0.0,
-        fallback_share=fallback_share,
+        distant_share=float(np.mean(distant)) if pixels else 0.0,
+        fallback_share=fallback / draws if draws else 0.0,
         repaired=frame.repaired,
+        fallback=int(fallback),
+        draws=int(draws),
+        distant_pixels=int(np.count_nonzero(distant)),
     )

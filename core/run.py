@@ -279,6 +279,10 @@ class SequenceRun:
     existing : {"error", "resume", "overwrite", "continue"}, see module doc
     write : write results, checkpoints and metrics (False: compute only)
     log : progress printer (one line per frame and method), or None
+    processors : callable (name, params, options) -> Processor, default
+        :func:`core.methods.make_processor`; e.g. tiled processors that run
+        elsewhere (core.tiling). A processor with a ``start(frame)`` method is
+        started for every method of a frame before the first result is awaited.
 
     Raises
     ------
@@ -299,6 +303,7 @@ class SequenceRun:
         existing: str = "error",
         write: bool = True,
         log: Log = None,
+        processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
     ) -> None:
         if existing not in EXISTING:
             raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
@@ -314,7 +319,7 @@ class SequenceRun:
         order = spec.order
         self._rank = {name: i for i, name in enumerate(order)}
         self.runs = {
-            name: _MethodRun(name, make_processor(name, spec.params, spec.options), self.out / name)
+            name: _MethodRun(name, processors(name, spec.params, spec.options), self.out / name)
             for name in order
         }
         self._started = time.perf_counter()
@@ -505,8 +510,22 @@ class SequenceRun:
         if self.log:
             self.log(f"warm-up frame {int(frame.number)} processed (not written)")
 
+    def start(self, frame: Frame) -> None:
+        """Start every processor that can (``start(frame)``) on the pending ``frame``."""
+        number = int(frame.number)
+        j = self._position[number]
+        due = self.reference_due(number)
+        for run in self.runs.values():
+            start = getattr(run.processor, "start", None)
+            if start is not None and j >= len(run.done) and (run.name != "reference" or due):
+                start(frame)
+
     def step(
-        self, frame: Frame, source: str | None = None, ground_truth: np.ndarray | None = None
+        self,
+        frame: Frame,
+        source: str | None = None,
+        ground_truth: np.ndarray | None = None,
+        lookahead: Frame | None = None,
     ) -> Step:
         """Process ``frame`` (the next pending frame of the sequence) with every method.
 
@@ -517,6 +536,11 @@ class SequenceRun:
         ground_truth : (H, W, 3) float, optional
             The frame path-traced by Cycles with subsurface on (linear); fills
             the ground-truth columns of the metric rows.
+        lookahead : Frame, optional
+            The next pending frame: every method's result of ``frame`` is
+            computed first, then processors that run elsewhere are started on
+            ``lookahead`` (:meth:`start`), and only then are the results written,
+            so their writing overlaps the next frame's work.
 
         Returns
         -------
@@ -549,17 +573,28 @@ class SequenceRun:
         previous = self._previous(number)
         light_mean = None
         ref = None
-        if self.reference_due(number):
+        due = self.reference_due(number)
+        self.start(frame)
+        if due:
             # The reference keeps no history, so recomputing it for a method that
             # lags behind after a resume gives the same image.
             ref = self.runs["reference"].processor.process(frame)
+        early: dict[str, FrameResult] = {}
+        if lookahead is not None:
+            for run in todo:
+                if run.name != "reference":
+                    early[run.name] = run.processor.process(frame)
+            self.start(lookahead)
         for run in todo:
             if run.name == "reference" and ref is None:
                 run.done.append(number)  # not due on this frame: no result, no row
                 if self.write:
                     self._save(run)
                 continue
-            result = ref if run.name == "reference" else run.processor.process(frame)
+            if run.name == "reference":
+                result = ref
+            else:
+                result = early.pop(run.name, None) or run.processor.process(frame)
             value = (
                 psnr(result.composite, ref.composite, result.mask, self.spec.params.exposure)
                 if ref is not None
@@ -762,6 +797,8 @@ def run_folder(
     log: Log = None,
     warn: Log = None,
     ground_truth: str | os.PathLike | None = None,
+    processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
+    lookahead: bool = False,
 ) -> list[dict]:
     """Post-process every frame of a folder of pass EXRs (the ``cvsss post`` job).
 
@@ -776,6 +813,10 @@ def run_folder(
     warn : printer of ``warning:`` lines (repaired values, gaps), or None
     ground_truth : folder of ground-truth EXRs (``####.exr``, Cycles' Combined with
         subsurface on), optional; frames that have one get the ground-truth columns
+    processors : as :class:`SequenceRun` (tiled processors: ``cvsss post --workers``)
+    lookahead : read each next frame early and start it before the results of the
+        current one are written (:meth:`SequenceRun.step`; for processors that run
+        elsewhere: their work then overlaps the writing)
 
     Returns
     -------
@@ -802,23 +843,25 @@ def run_folder(
     # The folder and its first frame's file: frames rendered again (other size,
     # other scene) make another source, so "continue" starts over; frames
     # added at the end keep it, so a run resumes into them.
-    first = frames[0][1].stat()
-    source = f"{os.fspath(passes.resolve())} ({frames[0][1].name}: {first.st_size} bytes, "
-    source += f"mtime {first.st_mtime_ns})"
+    head = frames[0][1].stat()
+    source = f"{os.fspath(passes.resolve())} ({frames[0][1].name}: {head.st_size} bytes, "
+    source += f"mtime {head.st_mtime_ns})"
     spec = dataclasses.replace(spec, source=source)
-    run = SequenceRun(out, spec, [n for n, _ in frames], existing=existing, log=log)
-    shape = first = None
-    for number, path in frames:
-        if not run.pending(number):
-            continue
+    run = SequenceRun(
+        out, spec, [n for n, _ in frames], existing=existing, log=log, processors=processors
+    )
+    first: list = []
+
+    def load(number: int, path: Path) -> Frame:
         with quiet_native_stderr():
             frame = read_frame(path, number=number)
-        if shape is None:
-            shape, first = frame.shape, path
-        elif frame.shape != shape:
+        if not first:
+            first.append((frame.shape, path))
+        elif frame.shape != first[0][0]:
+            shape, name = first[0][0], first[0][1].name
             raise PassError(
                 f"{os.fspath(path)}: frame is {frame.shape[1]}x{frame.shape[0]} but the sequence "
-                f"starts at {shape[1]}x{shape[0]} ({first.name}); every frame of a "
+                f"starts at {shape[1]}x{shape[0]} ({name}); every frame of a "
                 "sequence must have the same size"
             )
         if frame.repaired and warn:
@@ -826,11 +869,18 @@ def run_folder(
                 f"warning: {os.fspath(path)}: repaired {frame.repaired} non-finite or negative "
                 "pass value(s) (colours -> 0, depth -> background, motion -> off screen)"
             )
+        return frame
+
+    todo = [(number, path) for number, path in frames if run.pending(number)]
+    following = None
+    for k, (number, path) in enumerate(todo):
+        frame = following if following is not None else load(number, path)
+        following = load(*todo[k + 1]) if lookahead and k + 1 < len(todo) else None
         gt = None
         if ground_truth is not None:
             gt_path = Path(ground_truth) / f"{number:04d}.exr"
             if gt_path.exists():
                 with quiet_native_stderr():
                     gt = read_combined(gt_path)
-        run.step(frame, source=path.name, ground_truth=gt)
+        run.step(frame, source=path.name, ground_truth=gt, lookahead=following)
     return run.finish()

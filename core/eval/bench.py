@@ -86,11 +86,13 @@ Size = tuple[int, int]
 Log = Callable[[str], None] | None
 #: Measures the peak memory of each RSS configuration (see :func:`section_rss`).
 MeasureRss = Callable[[list[dict]], list[dict]]
+#: Measures the tiled post on 1 and 2 Dask workers (the front-end's; core runs no processes).
+MeasureWorkers = Callable[["BenchConfig"], dict]
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 COST_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
 #: Every section, in the order they run.
-SECTIONS = ("cost", "fit", "coverage", "resolution", "rss", "pareto")
+SECTIONS = ("cost", "fit", "coverage", "resolution", "rss", "pareto", "workers")
 #: Section → its key in the result (default: the section's name).
 RESULT_KEYS = {
     "fit": "samples_time_r2",
@@ -148,6 +150,12 @@ class BenchConfig:
     check_method: str = "as_ccv"
     check_seed: int = 0x5EED
     transfer_size: Size | None = (160, 90)
+    # the tiled post on Dask workers (issue 16): 2 workers against 1
+    workers_size: Size = (1280, 720)
+    workers_frames: int = 6
+    workers_methods: tuple[str, ...] = ("as_ccv",)
+    workers_tile: int = 256
+    workers_counts: tuple[int, ...] = (1, 2)
     sections: tuple[str, ...] = SECTIONS
 
     def __post_init__(self) -> None:
@@ -187,6 +195,9 @@ QUICK = BenchConfig(
     calib_families=((4, (1e-2, 1e-3)),),
     check_spp=8.0,
     transfer_size=None,
+    workers_size=(64, 36),
+    workers_frames=2,
+    workers_tile=24,
 )
 
 
@@ -1229,6 +1240,7 @@ def run_sections(
     measure_rss: MeasureRss | None = None,
     log: Log = None,
     start: float | None = None,
+    measure_workers: MeasureWorkers | None = None,
 ) -> dict:
     """Run the sections of ``cfg.sections`` and derive the headline figures.
 
@@ -1239,6 +1251,9 @@ def run_sections(
         (the timing sections stay synthetic: they need sizes and coverages the
         directory does not have)
     measure_rss : callable, see :func:`section_rss`; needed for the ``rss`` section
+    measure_workers : callable BenchConfig -> dict, the ``workers`` section (the tiled post
+        on Dask, run by the front-end: core starts no processes); None: the section
+        records that it was skipped
     log : callable str -> None receiving progress lines, or None
     start : time.perf_counter() of the run's start (progress time stamps)
 
@@ -1258,6 +1273,11 @@ def run_sections(
         "resolution": lambda: section_resolution(cfg, log, start),
         "rss": lambda: section_rss(cfg, measure_rss, log, start),
         "pareto": lambda: section_pareto(cfg, log, start, passes),
+        "workers": lambda: (
+            measure_workers(cfg)
+            if measure_workers is not None
+            else {"skipped": "needs a Dask cluster: run by the front-end (cvsss bench)"}
+        ),
     }
     result: dict[str, Any] = {"section_s": {}, "cpu_share": {}}
     for name in SECTIONS:

@@ -57,8 +57,8 @@ class DistantEstimate:
     Attributes
     ----------
     distant : (P, 3) float64, Î per channel (linear, same units as lighting)
-    samples : int, samples actually taken (Σm)
-    fallback : int, samples that fell back to the centre value
+    samples : int, samples actually taken (Σm; of the core pixels for a crop)
+    fallback : int, samples that fell back to the centre value (idem)
     variance : (P,) float64 or None, the sample variance of Î's Rec. 709
         luminance (linear²) when asked for: 0 without samples, inf with one
     """
@@ -114,6 +114,10 @@ def estimate_distant(
     DistantEstimate
     """
     h, w = geom.shape
+    # A crop (core.tiling) places samples in image coordinates, with the image's
+    # bounds, and reads its own arrays; a sample that leaves the crop falls back.
+    full_h, full_w = geom.image_shape
+    oy, ox = geom.origin
     light = lighting.reshape(-1, 3)
     depth_flat = depth.reshape(-1)
     mat_flat = geom.slots
@@ -126,6 +130,8 @@ def estimate_distant(
     var_sum = np.zeros((geom.size, 2)) if variance else None
     if total == 0:
         return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
+    core_a = None if geom.core is None else geom.core[active]
+    counted = total if core_a is None else int(counts[active][core_a].sum())
     # Per active pixel quantities, computed once; samples expand them with
     # np.repeat (a streaming copy) rather than random gathers.
     sx_all, sy_all = pixel_hashes(geom.x[active], geom.y[active], frame, seed)
@@ -194,11 +200,15 @@ def estimate_distant(
         qy += np.repeat(y_a[a:b], c)
         # Clip first: with a huge d (or a tiny footprint) the offset would not
         # fit the integer cast; -1 and w/h stay outside, as before the clip.
-        np.clip(qx, -1, w, out=qx)
-        np.clip(qy, -1, h, out=qy)
+        np.clip(qx, -1, full_w, out=qx)
+        np.clip(qy, -1, full_h, out=qy)
         sx, sy = (qx.copy(), qy.copy()) if surf is not None else (None, None)
         qx = np.rint(qx, out=qx)
         qy = np.rint(qy, out=qy)
+        if ox:
+            qx -= np.float32(ox)
+        if oy:
+            qy -= np.float32(oy)
         centre_idx = np.repeat(idx_a[a:b], c)
         inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
         q = np.where(inside, qy.astype(np.intp) * w + qx.astype(np.intp), centre_idx)
@@ -206,7 +216,10 @@ def estimate_distant(
         zq = np.take(depth32, q)
         zp = np.repeat(z_a[a:b], c)
         ok &= np.abs(zq - zp) <= slope * r
-        fallback += n - int(np.count_nonzero(ok))
+        if core_a is None:
+            fallback += n - int(np.count_nonzero(ok))
+        else:
+            fallback += int(np.count_nonzero(np.repeat(core_a[a:b], c) & ~ok))
         # A rejected sample reads the centre, so its difference is exactly 0.
         q = np.where(ok, q, centre_idx)
         diff = np.take(light_cm, q, axis=1)
@@ -272,4 +285,4 @@ def estimate_distant(
             s2 = (var_sum[:, 1] - var_sum[:, 0] ** 2 / m_all) / (m_all - 1.0)
             spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
         spread[(m_all == 0) | (gsum == 0)] = 0.0
-    return DistantEstimate(distant, total, fallback, spread)
+    return DistantEstimate(distant, counted, fallback, spread)

@@ -238,7 +238,17 @@ class History:
         with np.errstate(invalid="ignore"):
             close = np.abs(prev_depth - cur_depth) <= REPROJECT_DEPTH_TOLERANCE * cur_depth
         same = inside & (self.material.reshape(-1)[src] == material.reshape(-1)) & close
-        buffers = {k: v.reshape(-1)[src].reshape(self.shape) for k, v in self.buffers.items()}
+        outside = ~inside
+
+        def fetch(buffer: np.ndarray) -> np.ndarray:
+            # A pixel with no source gets zeros, not its neighbour's leftovers: the
+            # history is then a function of the image alone, which a tiled run
+            # (core.tiling) reproduces bit for bit.
+            out = buffer.reshape(-1)[src]
+            out[outside] = 0
+            return out.reshape(self.shape)
+
+        buffers = {k: fetch(v) for k, v in self.buffers.items()}
         for name in RESET_FIELDS:
             if name in buffers:
                 buffers[name] = np.where(same.reshape(self.shape), buffers[name], 0).astype(
@@ -265,7 +275,9 @@ class History:
         :meth:`from_arrays` inverts it bit for bit, so a sequence resumed
         from a checkpoint continues exactly as an uninterrupted run.
         """
-        meta = np.array([self.shape[0], self.shape[1], -1 if self.frame is None else self.frame])
+        # The shape is the pixel arrays' own: the state of a crop is then the crop of
+        # the state (core.tiling crops and assembles states without knowing them).
+        meta = np.array([-1 if self.frame is None else self.frame])
         arrays = {
             "meta": meta,
             "precision": np.array(self.precision),
@@ -287,7 +299,10 @@ class History:
             return np.asarray(arrays[prefix + key]).copy()
 
         keys = list(arrays.keys()) if hasattr(arrays, "keys") else list(arrays.files)
-        h, w, frame = (int(v) for v in get("meta"))
+        # meta is [frame] ([h, w, frame] in checkpoints before tiling): the shape is the
+        # pixel arrays'.
+        frame = int(get("meta")[-1])
+        h, w = np.shape(arrays[prefix + "valid"])
         start = prefix + "buf_"
         buffers = {
             k[len(start) :]: np.asarray(arrays[k]).copy() for k in keys if k.startswith(start)

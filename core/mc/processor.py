@@ -16,7 +16,7 @@ import numpy as np
 
 from ..eval.color import REC709
 from ..frame import Frame
-from ..geometry import Geometry, prepare
+from ..geometry import Geometry, light_scale, prepare
 from ..methods import Method, MethodOptions
 from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
@@ -124,7 +124,16 @@ class MonteCarloProcessor:
         t_start = time.perf_counter()
         p = self.params
         profile = self.profiles.get(frame)
-        geom = prepare(frame, profile, surface_distance=p.distance == "surface")
+        # A tile samples its core pixels only (core.tiling): each pixel's result needs
+        # its own history and the passes around it, never its neighbours' results.
+        # Temporal reuse reads its 3×3 neighbours' estimates: a tile computes a 1-pixel ring.
+        geom = prepare(
+            frame,
+            profile,
+            surface_distance=p.distance == "surface",
+            core_only=True,
+            margin=1 if self.method.temporal else 0,
+        )
         hist = self._aligned_history(frame) if self.method.adaptive else None
         m, valid = self._counts(geom, hist)
         if counts is not None:
@@ -174,6 +183,7 @@ class MonteCarloProcessor:
                     clamp=p.temporal_clamp,
                     tolerance=p.temporal_tolerance,
                     noise=noise,
+                    scale=light_scale(frame, profile),
                 )
             hist.frame = frame.number
             self.history = hist
@@ -187,7 +197,8 @@ class MonteCarloProcessor:
             m,
             eps_u=p.eps_u,
             samples=est.samples,
-            fallback_share=est.fallback / est.samples if est.samples else 0.0,
+            fallback=est.fallback,
+            draws=est.samples,
             pass_ms=pass_ms,
             update_ms=update_ms,
             total_ms=(time.perf_counter() - t_start) * 1e3,
@@ -203,6 +214,9 @@ class MonteCarloProcessor:
 
         if self._proxy_kernels is None or self._proxy_kernels[0] is not profile:
             self._proxy_kernels = (profile, build_kernels(profile, PROXY_KERNEL))
+        # The separable passes read each other's intermediate results: on a tile
+        # they run over every SSS pixel of the window, then the tile's are taken.
+        full = geom if geom.core is None else prepare(frame, profile)
         _, shaded, _ = apply(
             frame,
             profile,
@@ -210,8 +224,10 @@ class MonteCarloProcessor:
             self._proxy_kernels[1],
             seed=self.params.seed,
             depth_slope=self.params.depth_slope,
-            geom=geom,
+            geom=full,
         )
+        if full is not geom:
+            shaded = shaded[np.searchsorted(full.index, geom.index)]
         return shaded - (1.0 - geom.gamma) * b
 
     def _update(self, hist, geom, m, valid, distant, b):

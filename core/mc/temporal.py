@@ -102,9 +102,11 @@ def neighbourhood(geom: Geometry, values: np.ndarray, active: np.ndarray) -> tup
     total = np.zeros((geom.size, 3))
     square = np.zeros((geom.size, 3))
     count = np.zeros(geom.size)
+    # Coordinates in the frame's own arrays (a tile's x, y are the whole image's).
+    py, px = np.divmod(geom.index, w)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
-            x, y = geom.x + dx, geom.y + dy
+            x, y = px + dx, py + dy
             inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
             q = np.where(inside, y * w + x, geom.index)
             v = img[q]
@@ -133,6 +135,7 @@ def reuse(
     clamp: float,
     tolerance: float,
     noise: np.ndarray | None = None,
+    scale: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One temporal-reuse step (see the module doc); updates ``hist`` in place.
 
@@ -154,6 +157,11 @@ def reuse(
         the spread of its own samples; a prediction from the history more than
         :data:`NOISE_SIGMAS` of them away from the new estimate cuts the
         history (guided modes).
+    scale : (3,) float, optional
+        The frame's lighting scale (linear, :func:`core.geometry.light_scale`):
+        ε = 1e-3·scale keeps the logarithms and ratios finite on black pixels.
+        Default: the mean of ``control`` over these pixels (a tile must pass
+        its whole image's).
 
     Returns
     -------
@@ -163,7 +171,9 @@ def reuse(
     idx = geom.index
     distant = np.asarray(distant, dtype=np.float64)
     control = np.asarray(control, dtype=np.float64)
-    scale = np.maximum(control.mean(axis=0), 1e-12)
+    if scale is None:
+        scale = control.mean(axis=0) if control.size else np.zeros(3)
+    scale = np.maximum(np.asarray(scale, dtype=np.float64), 1e-12)
     eps = 1e-3 * scale  # per channel, relative to the frame's lighting
     if mode == "multiplicative":
         shift = np.maximum(proxy, 0.0) + eps

@@ -80,13 +80,16 @@ class _Pixels:
     runs: list  # [(slot, start, stop)]
     lengths: np.ndarray  # (R,) run lengths
     slots: np.ndarray  # (R,) run slots
-    index: np.ndarray  # (P,) flat pixel index
-    x: np.ndarray
+    index: np.ndarray  # (P,) flat pixel index into the frame's arrays
+    x: np.ndarray  # (P,) image coordinates (a crop's pixels keep theirs)
     y: np.ndarray
     mat: np.ndarray  # (P,) int32
     z: np.ndarray  # (P,) float32 depth
     inv_fw: np.ndarray  # (P,) float32 pixels per scene unit
     inv_fh: np.ndarray
+    origin: tuple[int, int]  # (y, x) image coordinates of the frame's pixel (0, 0)
+    image: tuple[int, int]  # (H, W) of the whole image
+    core: np.ndarray | None  # (P,) bool, pixels whose reads are counted (None: all)
 
 
 def _pixels(geom: Geometry) -> _Pixels:
@@ -106,6 +109,9 @@ def _pixels(geom: Geometry) -> _Pixels:
         geom.depth[order].astype(np.float32),
         (1.0 / geom.fw[order]).astype(np.float32),
         (1.0 / geom.fh[order]).astype(np.float32),
+        geom.origin,
+        geom.image_shape,
+        None if geom.core is None else geom.core[order],
     )
 
 
@@ -140,7 +146,7 @@ def _one_pass(
     -------
     out : (3J, P) float32, ``Σ_i w_i·sample_i`` per term and channel, sorted order
     fallback : reads with zero weight: other material, off screen, or a depth
-        difference that removes them entirely
+        difference that removes them entirely (of the core pixels, for a crop)
     """
     h, w = shape
     c_in = src.shape[0]
@@ -148,11 +154,17 @@ def _one_pass(
     reps = c_out // c_in
     p_count = px.index.size
     n = tab.offsets.shape[1]
+    oy, ox = px.origin
     # A read is q = base + clip(p)·stride; a p outside [0, size) fails the inside test.
+    # Positions are image coordinates (a crop reads what the whole image reads); a
+    # crop's arrays start at ``first`` and a read that leaves them gets no weight.
     if axis == 0:
-        coord, base, stride, size, scale = px.x, px.y * w, 1, w, px.inv_fw
+        coord, base, stride, size, scale = px.x, (px.y - oy) * w, 1, px.image[1], px.inv_fw
+        first, span = ox, w
     else:
-        coord, base, stride, size, scale = px.y, px.x, w, h, px.inv_fh
+        coord, base, stride, size, scale = px.y, px.x - ox, w, px.image[0], px.inv_fh
+        first, span = oy, h
+    cropped = first != 0 or span != size
     coord_i = coord.astype(np.intp)
     coord = coord.astype(np.float32)
     base = base.astype(np.intp)
@@ -192,7 +204,12 @@ def _one_pass(
         val = np.zeros_like(centre)
         for p, a in reads:
             pc = np.clip(p, 0, size - 1)
-            q = pc * stride if stride != 1 else pc + base
+            local = pc
+            if cropped:
+                local = pc - first
+                outside = (local < 0) | (local >= span)
+                local = np.clip(local, 0, span - 1)
+            q = local * stride if stride != 1 else local + base
             if stride != 1:
                 q += base
             # Depth of the read where it has the run's material, +inf elsewhere:
@@ -211,7 +228,12 @@ def _one_pass(
                 with np.errstate(invalid="ignore"):
                     wz = (np.abs(wz) * scale <= np.float32(depth_slope) * dist).astype(np.float32)
             np.copyto(wz, 0.0, where=p != pc)
-            fallback += p_count - int(np.count_nonzero(wz))
+            if cropped:
+                np.copyto(wz, 0.0, where=outside)
+            if px.core is None:
+                fallback += p_count - int(np.count_nonzero(wz))
+            else:
+                fallback += int(np.count_nonzero(px.core & (wz == 0)))
             if a is not None:
                 wz *= a
             d = np.take(src, q, axis=1)
@@ -251,14 +273,25 @@ def apply(
     shaded : (P, 3) float64, L per SSS pixel (linear, >= 0)
     stats : dict with ``pass_ms`` (both passes), ``reads_per_pixel`` (2·J·taps, twice that
         with the linear filter: what the method reads per pixel, its "sample count"),
-        ``fallback_share`` (tap reads that fell back to the centre, of all tap reads)
+        ``fallback_share`` (tap reads that fell back to the centre, of all tap reads),
+        and its terms ``fallback`` and ``tap_reads`` (of a crop's core pixels only)
     """
     if kernels is None:
         kernels = build_kernels(profile, params)
     if geom is None:
         geom = prepare(frame, profile)
     if geom.size == 0:
-        return geom, np.zeros((0, 3)), {"pass_ms": 0.0, "reads_per_pixel": 0, "fallback_share": 0.0}
+        return (
+            geom,
+            np.zeros((0, 3)),
+            {
+                "pass_ms": 0.0,
+                "reads_per_pixel": 0,
+                "fallback_share": 0.0,
+                "fallback": 0,
+                "tap_reads": 0,
+            },
+        )
     j = params.terms
     tab = _stack(kernels, profile.n_slots, params)
     px = _pixels(geom)
@@ -296,13 +329,16 @@ def apply(
     big = float(np.finfo(np.float32).max)
     shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=big), 0.0, big)
     per_read = 2 if linear else 1
-    tap_reads = 2 * per_read * (params.taps - 1) * geom.size
+    counted = geom.size if geom.core is None else int(np.count_nonzero(geom.core))
+    tap_reads = 2 * per_read * (params.taps - 1) * counted
     return (
         geom,
         shaded,
         {
             "pass_ms": pass_ms,
             "reads_per_pixel": 2 * j * params.taps * per_read,
-            "fallback_share": (fb1 + fb2) / tap_reads,
+            "fallback_share": (fb1 + fb2) / tap_reads if tap_reads else 0.0,
+            "fallback": fb1 + fb2,
+            "tap_reads": tap_reads,
         },
     )

@@ -69,8 +69,9 @@ class SeparableProcessor:
             shaded,
             reads,
             eps_u=self.params.eps_u,
-            samples=int(reads.sum()),
-            fallback_share=stats["fallback_share"],
+            samples=int(reads[geom.core].sum()) if geom.core is not None else int(reads.sum()),
+            fallback=stats["fallback"],
+            draws=stats["tap_reads"],
             pass_ms=stats["pass_ms"],
             total_ms=(time.perf_counter() - t_start) * 1e3,
         )

@@ -103,6 +103,12 @@ class Job:
     ground_truth_every: int = 1
     ground_truth_method: str = "BURLEY"
     warmup_frames: int = 0
+    #: First frame of the whole range when this job renders one chunk of it, so the
+    #: ground truth falls on the same frames (every k-th of the whole range).
+    range_start: int | None = None
+    #: False: the passes (and ground truth) were rendered elsewhere (chunks on a
+    #: farm); they are read, never rendered, and a missing one is an error.
+    render_passes: bool = True
 
     @property
     def passes_dir(self) -> Path:
@@ -114,6 +120,8 @@ class Job:
 
     def ground_truth_due(self, index: int) -> bool:
         """Whether the frame at 0-based ``index`` of the range gets a ground truth."""
+        if self.range_start is not None:
+            index += self.frames[0] - self.range_start
         return self.ground_truth and index % self.ground_truth_every == 0
 
     @property
@@ -357,8 +365,16 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             start = time.perf_counter()
             path = pass_path(job.passes_dir, frame)
             wanted = needed is None or needed(frame)
-            rendered = wanted and (
-                job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes)
+            if not job.render_passes:
+                if wanted and not frame_done(job.passes_dir, frame, job.denoise_passes):
+                    raise RenderError(
+                        f"{path}: pass file missing or made with other settings after the "
+                        "pass render (render the frame again)"
+                    )
+            rendered = (
+                wanted
+                and job.render_passes
+                and (job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes))
             )
             # Made with the other denoise setting: said, never reused silently.
             redo = (
@@ -381,6 +397,14 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                 step.ground_truth_rendered = job.overwrite or not gt.ground_truth_done(
                     job.ground_truth_dir, frame, job.ground_truth_samples, job.ground_truth_method
                 )
+                if not job.render_passes and step.ground_truth_rendered:
+                    if job.overwrite and step.ground_truth.exists():
+                        step.ground_truth_rendered = False
+                    else:
+                        raise RenderError(
+                            f"{step.ground_truth}: ground truth missing or made with other "
+                            "settings after the pass render"
+                        )
                 if step.ground_truth_rendered:
                     gt.render_ground_truth(
                         scene,
@@ -429,8 +453,11 @@ def run_source(job: Job) -> str:
     return source
 
 
-def run_of(job: Job, write: bool = True) -> SequenceRun:
-    """The post-process of ``job``: every method over the job's frames (core.run)."""
+def run_of(job: Job, write: bool = True, processors=None) -> SequenceRun:
+    """The post-process of ``job``: every method over the job's frames (core.run).
+
+    ``processors`` as :class:`core.run.SequenceRun` (tiled processors on a cluster).
+    """
     spec = RunSpec(
         tuple(job.methods),
         job.params,
@@ -440,7 +467,10 @@ def run_of(job: Job, write: bool = True) -> SequenceRun:
         warmup_frames=job.warmup_frames,
     )
     existing = "overwrite" if job.overwrite else "continue"
-    return SequenceRun(job.out, spec, job.frames, existing=existing, write=write, log=job.log)
+    extra = {} if processors is None else {"processors": processors}
+    return SequenceRun(
+        job.out, spec, job.frames, existing=existing, write=write, log=job.log, **extra
+    )
 
 
 def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
@@ -631,6 +661,11 @@ def render_sequence(
     ground_truth_every: int | None = None,
     ground_truth_method: str | None = None,
     warmup_frames: int = 0,
+    passes_only: bool = False,
+    range_start: int | None = None,
+    render_passes: bool = True,
+    processors=None,
+    on_job: Callable[[Job], None] | None = None,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -677,6 +712,16 @@ def render_sequence(
         written), so the first result has a history, as Apply on Render does
         with the scene's ``warmup_frames``. A run that resumes has its
         history and skips them.
+    passes_only : bool
+        Render the passes (and ground truth) only: no post-process, no metrics.
+    range_start : int, optional
+        First frame of the whole range when ``frames`` is one chunk of it (the
+        ground truth then falls on every k-th frame of the whole range).
+    render_passes : bool
+        False: read passes rendered elsewhere (chunks on a farm), never render.
+    processors : as :class:`core.run.SequenceRun` (the tiled post on a cluster)
+    on_job : called with the validated :class:`Job` before any work (e.g. to
+        render its passes elsewhere first)
 
     Returns
     -------
@@ -726,12 +771,21 @@ def render_sequence(
             ground_truth_method=ground_truth_method,
             warmup_frames=warmup_frames,
         )
-        run = run_of(job)
+        job.range_start = range_start
+        job.render_passes = render_passes
+        if on_job is not None:
+            on_job(job)
         # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.
         console = StdoutFilter(os.fspath(job.out)) if bpy.app.background and log else None
         if console is not None:
             console.start()
         try:
+            if passes_only:
+                for _ in iter_passes(job):
+                    if console is not None:
+                        console.forward()
+                return []
+            run = run_of(job, processors=processors)
             for _ in iter_sequence(job, run):
                 if console is not None:
                     console.forward()

@@ -307,7 +307,12 @@ def run_bench(
     }
     result.update(
         bench.run_sections(
-            cfg, passes=passes, measure_rss=measure_rss(cfg.rss_workers), log=log, start=start
+            cfg,
+            passes=passes,
+            measure_rss=measure_rss(cfg.rss_workers),
+            log=log,
+            start=start,
+            measure_workers=lambda c: _measure_workers(c, log, start),
         )
     )
     if "pareto" in result:
@@ -336,13 +341,37 @@ def run_bench(
     return result
 
 
+def _measure_workers(cfg: bench.BenchConfig, log, start: float) -> dict:
+    """The ``workers`` section (needs the cvsss[farm] extra; skipped without it)."""
+    try:
+        from ..farm.bench import measure_workers
+        from ..farm.cluster import FarmError
+    except ImportError as exc:  # pragma: no cover - the extension has no farm package
+        return {"skipped": str(exc)}
+    try:
+        return measure_workers(
+            cfg,
+            None if log is None else lambda t: log(f"[{time.perf_counter() - start:7.1f} s] {t}"),
+        )
+    except FarmError as exc:
+        return {"skipped": str(exc)}
+
+
 def format_summary(result: dict) -> str:
-    """The targets as a small text table."""
+    """The targets as a small text table, and the workers' speed-up."""
     lines = ["target                                  value        target     met"]
     for name, t in result.get("targets", {}).items():
         v = t["value"]
         vs = "n/a" if v is None else f"{v:.4g}"
         lines.append(f"{name:<38} {vs:>10}   {t['target']:>10}   {'yes' if t['met'] else 'NO'}")
+    w = result.get("workers") or {}
+    if "speedup_2_vs_1" in w:
+        lines.append(
+            f"tiled post at {w['size']}: 2 workers {w['speedup_2_vs_1']:.2f}x faster than 1 "
+            f"({w['runs']['1']['wall_s']:.1f} s -> {w['runs']['2']['wall_s']:.1f} s on "
+            f"{w['cpus']} cores), output {'identical' if w['identical'] else 'DIFFERENT'} "
+            f"to cvsss post; from CPU times, on dedicated cores: {w['cpu_speedup_2_vs_1']:.2f}x"
+        )
     return "\n".join(lines)
 
 

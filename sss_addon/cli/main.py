@@ -75,6 +75,60 @@ def parse_frames(text: str) -> tuple[int, int]:
     return start, end
 
 
+def _farm_arguments(parser: argparse.ArgumentParser, split: str) -> None:
+    """``--workers N | --scheduler ADDRESS`` and ``--tile`` (post) or ``--chunk`` (render)."""
+    group = parser.add_argument_group(
+        "distribution (Dask; needs the cvsss[farm] extra)",
+        "post: each frame is split into tiles with a halo that run on the workers, with "
+        "output identical bit for bit to the run without workers; render: the passes are "
+        "rendered in frame chunks, one Blender process per chunk",
+    )
+    where = group.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="start a local Dask cluster of N worker processes on 127.0.0.1",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:PORT",
+        help="use the running Dask scheduler at this address (workers with cvsss[farm] "
+        "installed and the same paths)",
+    )
+    group.add_argument(
+        "--tile",
+        type=int,
+        default=256,
+        metavar="PX",
+        help="tile side in pixels of the post (default 256); the halo is computed per frame",
+    )
+    if split == "chunk":
+        group.add_argument(
+            "--chunk",
+            type=int,
+            default=8,
+            metavar="FRAMES",
+            help="frames per pass-rendering task (default 8)",
+        )
+
+
+def _distributed(args: argparse.Namespace) -> bool:
+    """Whether workers were asked for (and the values are sane)."""
+    if args.workers is not None:
+        _check_at_least_one("--workers", args.workers)
+    for flag in ("tile", "chunk"):
+        if getattr(args, flag, None) is not None:
+            _check_at_least_one(f"--{flag}", getattr(args, flag))
+    if args.scheduler is not None and "://" not in args.scheduler:
+        raise UserError(
+            f"--scheduler must be an address like tcp://HOST:PORT, got {args.scheduler!r}"
+        )
+    return args.workers is not None or args.scheduler is not None
+
+
 def _reference_every(parser: argparse.ArgumentParser, default: int, text: str) -> None:
     parser.add_argument("--reference-every", type=int, default=default, metavar="K", help=text)
 
@@ -135,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
         "PASSES/../ground_truth when it exists",
     )
     post.add_argument("--quiet", action="store_true", help="no per-frame progress")
+    _farm_arguments(post, "tile")
     post.add_argument(
         "--quality",
         default=None,
@@ -292,6 +347,16 @@ def build_parser() -> argparse.ArgumentParser:
         "profile the post samples) or random_walk (default: the scene's cvsss setting, burley)",
     )
     rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
+    rnd.add_argument(
+        "--passes-only",
+        action="store_true",
+        help="render the passes (and the ground truth, when asked) only: no post-process, "
+        "no results, no metrics (post them later with cvsss post OUT/passes)",
+    )
+    # Set by a distributed render on each chunk: the first frame of the whole range,
+    # so the ground truth falls on every K-th frame of the range, not of the chunk.
+    rnd.add_argument("--range-start", type=int, default=None, help=argparse.SUPPRESS)
+    _farm_arguments(rnd, "chunk")
     add_arguments(rnd)
 
     from . import bench, studies
@@ -365,16 +430,31 @@ def _post(args: argparse.Namespace) -> int:
         ground_truth = args.passes.parent / "ground_truth"
     elif ground_truth is not None and not ground_truth.is_dir():
         raise UserError(f"--ground-truth {ground_truth}: no such folder")
-    run_folder(
-        args.passes,
-        args.out,
-        spec,
-        existing=existing,
-        allow_gaps=args.allow_gaps,
-        log=None if args.quiet else print,
-        warn=lambda text: print(text, file=sys.stderr),
-        ground_truth=ground_truth,
-    )
+    common = {
+        "existing": existing,
+        "allow_gaps": args.allow_gaps,
+        "log": None if args.quiet else print,
+        "warn": lambda text: print(text, file=sys.stderr),
+        "ground_truth": ground_truth,
+    }
+    if _distributed(args):
+        from ..farm.cluster import FarmError
+        from ..farm.post import post_distributed
+
+        try:
+            post_distributed(
+                args.passes,
+                args.out,
+                spec,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                tile=args.tile,
+                **common,
+            )
+        except FarmError as exc:
+            raise UserError(str(exc)) from None
+        return 0
+    run_folder(args.passes, args.out, spec, **common)
     return 0
 
 
@@ -413,6 +493,13 @@ def _render(args: argparse.Namespace) -> int:
         raise UserError("no .blend file given and Blender has none open")
     from ..blender.render import RenderError, render_sequence
 
+    if _distributed(args):
+        if args.range_start is not None:
+            raise UserError("--range-start is set by a distributed render on its chunks only")
+        blend = args.blend if args.blend is not None else Path(bpy.data.filepath)
+        return _render_distributed(
+            args, blend, render_sequence, RenderError, frames, methods, params, option_overrides
+        )
     try:
         render_sequence(
             args.blend,
@@ -434,8 +521,54 @@ def _render(args: argparse.Namespace) -> int:
                 None if args.ground_truth_method is None else args.ground_truth_method.upper()
             ),
             warmup_frames=args.warmup_frames,
+            passes_only=args.passes_only,
+            range_start=args.range_start,
         )
     except RenderError as exc:
+        raise UserError(str(exc)) from None
+    return 0
+
+
+def _render_distributed(
+    args, blend, render_sequence, render_error, frames, methods, params, option_overrides
+) -> int:
+    """``render --workers/--scheduler``: pass chunks on the cluster, then the tiled post."""
+    from ..farm.cluster import FarmError, open_cluster
+    from ..farm.passes import PassRenderError, render_chunks
+    from ..farm.post import tiled_processors
+
+    log = None if args.quiet else print
+    try:
+        with open_cluster(args.workers, args.scheduler, log=log) as executor:
+            render_sequence(
+                args.blend,
+                frames,
+                args.out,
+                methods,
+                params,
+                args.engine,
+                args.overwrite,
+                log,
+                reference=args.reference,
+                reference_every=args.reference_every,
+                options=option_overrides,
+                denoise_passes=args.denoise_passes,
+                ground_truth=args.ground_truth,
+                ground_truth_samples=args.ground_truth_spp,
+                ground_truth_every=args.ground_truth_every,
+                ground_truth_method=(
+                    None if args.ground_truth_method is None else args.ground_truth_method.upper()
+                ),
+                passes_only=args.passes_only,
+                render_passes=False,
+                processors=tiled_processors(
+                    executor, args.tile, log=lambda text: print(text, file=sys.stderr)
+                ),
+                on_job=lambda job: render_chunks(executor, blend, job, args.chunk, log),
+            )
+    except FarmError as exc:
+        raise UserError(str(exc)) from None
+    except (render_error, PassRenderError) as exc:
         raise UserError(str(exc)) from None
     return 0
 

@@ -42,6 +42,9 @@ def test_zip_content(extension_zip):
         r"^Makefile$",
         r"^pyproject\.toml$",
         r"^requirements\.txt$",
+        r"^requirements-farm\.txt$",
+        r"^farm/",
+        r"^wheels/(?!openexr-)",  # the farm extra's dependencies are never bundled
         r"^out/",
         r"^dist/",
         r"\.blend$",

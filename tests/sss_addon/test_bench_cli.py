@@ -132,6 +132,7 @@ def test_quick_run_writes_bench_json(quick_run):
         "resolution_scaling",
         "peak_rss_mb",
         "pareto",
+        "workers",
         "ns_per_sample",
         "gather_ns_per_sample",
         "overhead_fraction",
@@ -158,6 +159,15 @@ def test_quick_run_writes_bench_json(quick_run):
         "quality_calibration.json",
         "scaling.png",
     ]
+
+
+def test_quick_run_measures_the_tiled_post_on_workers(quick_run):
+    w = quick_run[2]["workers"]
+    if "skipped" in w:
+        pytest.skip(w["skipped"])
+    assert w["identical"] and set(w["runs"]) == {"1", "2"}
+    assert w["speedup_2_vs_1"] > 0 and w["runs"]["2"]["work_ms_per_tile"] > 0
+    assert 0 < w["runs"]["1"]["halo_overhead"] < 10
 
 
 def test_quick_run_measures_memory_in_subprocesses(quick_run):
