@@ -245,3 +245,40 @@ def sequence(
     """Frames ``start .. start+frames−1`` of a synthetic sequence."""
     for n in range(start, start + frames):
         yield scene_frame(kind, n, width, height, **kw)
+
+
+def moving_frame(
+    number: int,
+    width: int = 96,
+    height: int = 64,
+    step: tuple[int, int] = (3, 2),
+    offscreen_rows: int = 0,
+) -> Frame:
+    """The ``flash`` sequence translated ``step`` pixels (x, y) per frame, with motion vectors.
+
+    Content wraps around the image (``np.roll``); the motion vectors (pixels,
+    Blender's convention: towards the previous frame) carry a smooth sub-pixel
+    jitter so that reprojection interpolates. The top ``offscreen_rows`` rows
+    get vectors pointing far off the image (a disocclusion marker). For tests
+    and benchmarks of history handling across tile borders.
+    """
+    base = scene_frame("flash", number, width, height)
+    yy, xx = np.mgrid[0:height, 0:width]
+    jitter = 0.45 * np.sin(0.7 * xx + 1.3 * yy + number)
+    motion = np.stack([-step[0] + jitter, -step[1] - jitter], axis=-1).astype(np.float32)
+    motion[:offscreen_rows, :] = 1e7
+
+    def shift(a: np.ndarray) -> np.ndarray:
+        return np.roll(a, (step[1] * number, step[0] * number), axis=(0, 1))
+
+    return Frame(
+        number=number,
+        lighting=shift(base.lighting),
+        albedo=shift(base.albedo),
+        combined=shift(base.combined),
+        depth=shift(base.depth),
+        material=shift(base.material),
+        camera=base.camera,
+        materials=base.materials,
+        motion=motion,
+    )

@@ -503,30 +503,36 @@ def _render(args: argparse.Namespace) -> int:
     try:
         render_sequence(
             args.blend,
-            frames,
-            args.out,
-            methods,
-            params,
-            args.engine,
-            args.overwrite,
-            None if args.quiet else print,
-            reference=args.reference,
-            reference_every=args.reference_every,
-            options=option_overrides,
-            denoise_passes=args.denoise_passes,
-            ground_truth=args.ground_truth,
-            ground_truth_samples=args.ground_truth_spp,
-            ground_truth_every=args.ground_truth_every,
-            ground_truth_method=(
-                None if args.ground_truth_method is None else args.ground_truth_method.upper()
-            ),
+            log=None if args.quiet else print,
+            **_sequence_options(args, frames, methods, params, option_overrides),
             warmup_frames=args.warmup_frames,
-            passes_only=args.passes_only,
             range_start=args.range_start,
         )
     except RenderError as exc:
         raise UserError(str(exc)) from None
     return 0
+
+
+def _sequence_options(args: argparse.Namespace, frames, methods, params, option_overrides) -> dict:
+    """The ``render_sequence`` keywords that a local and a distributed render share."""
+    method = args.ground_truth_method
+    return {
+        "frames": frames,
+        "out": args.out,
+        "methods": methods,
+        "params": params,
+        "engine": args.engine,
+        "overwrite": args.overwrite,
+        "reference": args.reference,
+        "reference_every": args.reference_every,
+        "options": option_overrides,
+        "denoise_passes": args.denoise_passes,
+        "ground_truth": args.ground_truth,
+        "ground_truth_samples": args.ground_truth_spp,
+        "ground_truth_every": args.ground_truth_every,
+        "ground_truth_method": None if method is None else method.upper(),
+        "passes_only": args.passes_only,
+    }
 
 
 def _render_distributed(
@@ -542,24 +548,8 @@ def _render_distributed(
         with open_cluster(args.workers, args.scheduler, log=log) as executor:
             render_sequence(
                 args.blend,
-                frames,
-                args.out,
-                methods,
-                params,
-                args.engine,
-                args.overwrite,
-                log,
-                reference=args.reference,
-                reference_every=args.reference_every,
-                options=option_overrides,
-                denoise_passes=args.denoise_passes,
-                ground_truth=args.ground_truth,
-                ground_truth_samples=args.ground_truth_spp,
-                ground_truth_every=args.ground_truth_every,
-                ground_truth_method=(
-                    None if args.ground_truth_method is None else args.ground_truth_method.upper()
-                ),
-                passes_only=args.passes_only,
+                log=log,
+                **_sequence_options(args, frames, methods, params, option_overrides),
                 render_passes=False,
                 processors=tiled_processors(
                     executor, args.tile, log=lambda text: print(text, file=sys.stderr)

@@ -69,6 +69,17 @@ def demo(fresh, tmp_path):
     return scene
 
 
+@pytest.fixture
+def demo_blend(demo, tmp_path):
+    """The :func:`demo` scene saved with its cvsss settings (no reference) as a .blend."""
+    import bpy
+
+    demo.sss_settings.use_reference = False
+    path = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
 # -- scene state snapshots (independent of the add-on's own snapshot code) ------------------
 _SCALARS = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
 

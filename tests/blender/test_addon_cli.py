@@ -19,15 +19,6 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
-def demo_blend(demo, tmp_path):
-    """The flash demo saved with its cvsss settings (method as_ocv, no reference)."""
-    demo.sss_settings.use_reference = False
-    path = tmp_path / "scene.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return path
-
-
-@pytest.fixture
 def plain_blend(addon, tmp_path):
     """A scene with a camera and only a non-subsurface material (resets the session)."""
     from cvsss.demo_blend.scenes import diffuse_material

@@ -20,15 +20,6 @@ from cvsss.sss_addon.cli import main as cli  # noqa: E402
 pytestmark = pytest.mark.bpy
 
 
-@pytest.fixture
-def demo_blend(demo, tmp_path):
-    """The flash demo (48x32, 4 samples) saved with its cvsss settings."""
-    demo.sss_settings.use_reference = False
-    path = tmp_path / "scene.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return path
-
-
 def _mtimes(folder: Path) -> dict[str, int]:
     return {p.name: p.stat().st_mtime_ns for p in sorted(folder.glob("*.exr"))}
 

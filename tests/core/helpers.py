@@ -48,3 +48,20 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False):
 def chi2_limit(dof: int, level: float = 0.999) -> float:
     """The ``level`` quantile of χ² with ``dof`` degrees of freedom (scipy)."""
     return float(stats.chi2.ppf(level, dof))
+
+
+def shadow_edge(w: int = 64, h: int = 48) -> np.ndarray:
+    """(h, w, 3) float32 linear lighting: a vertical shadow edge (0.05 left, 1 right), tinted."""
+    x = np.arange(w)[None, :, None]
+    edge = np.broadcast_to(np.where(x < w // 2, 0.05, 1.0), (h, w, 3)).astype(np.float32)
+    return edge * np.array([1.0, 0.8, 0.6], np.float32)
+
+
+def assert_radii_follow_cdf(prof, r: np.ndarray, edges: np.ndarray, channel: int) -> None:
+    """χ² test (level 0.999) of sampled radii ``r`` against ``prof``'s radial CDF on ``edges``."""
+    counts, _ = np.histogram(r, bins=edges)
+    cdf = prof.radial_cdf(edges, 1)[channel]
+    expected = r.size * np.diff(cdf) / (cdf[-1] - cdf[0])
+    keep = expected > 5
+    chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
+    assert chi2 < chi2_limit(int(keep.sum()) - 1), chi2

@@ -8,7 +8,7 @@ import pytest
 from cvsss.core.profiles import DipoleProfile, dipole, presets
 from cvsss.core.synthetic import flat_plane
 
-from helpers import chi2_limit, shade
+from helpers import assert_radii_follow_cdf, shade, shadow_edge
 
 
 def profile_of(name: str, unit: float = 1.0, single: bool = True) -> DipoleProfile:
@@ -98,12 +98,7 @@ def test_sampler_chi_square(channel):
     rmax = prof.support(1)[channel]
     assert r.min() >= r0 * (1 - 1e-3) and r.max() <= rmax * (1 + 1e-6)
     edges = np.geomspace(r0, rmax, 51)
-    counts, _ = np.histogram(r, bins=edges)
-    cdf = prof.radial_cdf(edges, 1)[channel]
-    expected = n * np.diff(cdf) / (cdf[-1] - cdf[0])
-    keep = expected > 5
-    chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
-    assert chi2 < chi2_limit(int(keep.sum()) - 1), chi2
+    assert_radii_follow_cdf(prof, r, edges, channel)
 
 
 def test_region_limits_and_units():
@@ -167,13 +162,6 @@ def test_constant_lighting_is_exact(m):
     assert est.samples == m * geom.size
 
 
-def _shadow_edge(w=64, h=48):
-    x = np.arange(w)[None, :, None]
-    return np.broadcast_to(np.where(x < w // 2, 0.05, 1.0), (h, w, 3)).astype(
-        np.float32
-    ) * np.array([1.0, 0.8, 0.6], np.float32)
-
-
 def test_unbiased_on_flat_plane():
     """8-spp estimates averaged over seeds match a 2048-spp reference on a shadow edge.
 
@@ -182,7 +170,7 @@ def test_unbiased_on_flat_plane():
     averaged over the 16 rows: |mean − ref| <= 4 standard errors + 5e-4
     (the reference's own error), for >= 99 % of the columns and channels.
     """
-    frame = flat_plane(64, 16, lighting=_shadow_edge(64, 16))
+    frame = flat_plane(64, 16, lighting=shadow_edge(64, 16))
     prof = profile_of("skin1", UNIT)
     seeds = 40
     runs = np.stack(

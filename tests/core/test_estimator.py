@@ -12,7 +12,7 @@ from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.profiles import BurleyProfile
 from cvsss.core.synthetic import flat_plane, scene_frame
 
-from helpers import shade
+from helpers import shade, shadow_edge
 
 CHROMATIC = (0.02, 0.008, 0.003)  # metres; ~2.7, 1.1, 0.4 px at 2 m, 64 px wide
 
@@ -45,13 +45,6 @@ def test_zero_counts_reduce_to_diffuse():
     assert np.allclose(shaded, b.reshape(-1, 3), rtol=0, atol=1e-7)
 
 
-def _shadow_edge(w=64, h=48):
-    x = np.arange(w)[None, :, None]
-    return np.broadcast_to(np.where(x < w // 2, 0.05, 1.0), (h, w, 3)).astype(
-        np.float32
-    ) * np.array([1.0, 0.8, 0.6], np.float32)
-
-
 def test_unbiased_on_flat_plane():
     """Mean of the 8-spp estimator over seeds matches a 2048-spp reference.
 
@@ -59,7 +52,7 @@ def test_unbiased_on_flat_plane():
     the reference's own error bound (1e-3 of the lighting range); checked on
     the pixels around a shadow edge, where the estimate is not trivial.
     """
-    frame = flat_plane(d=CHROMATIC, lighting=_shadow_edge())
+    frame = flat_plane(d=CHROMATIC, lighting=shadow_edge())
     seeds = 48
     runs = np.stack([run(frame, 8, seed=s)[2] for s in range(seeds)])
     _, _, ref = run(frame, 2048, seed=10_000)
@@ -75,7 +68,7 @@ def test_unbiased_on_flat_plane():
 
 def test_energy_conserved_on_flat_plane():
     """Scattering moves energy across the edge but keeps the total (interior rows)."""
-    frame = flat_plane(d=CHROMATIC, lighting=_shadow_edge())
+    frame = flat_plane(d=CHROMATIC, lighting=shadow_edge())
     _, _, ref = run(frame, 1024, seed=5)
     img = ref.reshape(48, 64, 3)
     b = frame.lighting
@@ -85,7 +78,7 @@ def test_energy_conserved_on_flat_plane():
 
 
 def test_other_material_and_depth_fall_back_to_centre():
-    frame = flat_plane(d=CHROMATIC, lighting=_shadow_edge())
+    frame = flat_plane(d=CHROMATIC, lighting=shadow_edge())
     # Right half: another material -> left pixels must not see its lighting.
     frame.material[:, 32:] = 2
     frame.materials[2] = type(frame.materials[1])(2, "other", CHROMATIC)
@@ -94,14 +87,14 @@ def test_other_material_and_depth_fall_back_to_centre():
     assert np.allclose(shaded[left], frame.lighting.reshape(-1, 3)[left], atol=1e-12)
     assert est.fallback > 0
     # Same material but a depth step of 1 m at the edge: also no bleeding.
-    frame2 = flat_plane(d=CHROMATIC, lighting=_shadow_edge())
+    frame2 = flat_plane(d=CHROMATIC, lighting=shadow_edge())
     frame2.depth[:, 32:] = 3.0
     _, _, shaded2 = run(frame2, 64)
     assert np.allclose(shaded2[left], frame2.lighting.reshape(-1, 3)[left], atol=1e-12)
 
 
 def test_bit_identical_reruns_and_seed_dependence():
-    frame = flat_plane(d=CHROMATIC, lighting=_shadow_edge())
+    frame = flat_plane(d=CHROMATIC, lighting=shadow_edge())
     a = run(frame, 16, seed=3)[2]
     b = run(frame, 16, seed=3)[2]
     c = run(frame, 16, seed=4)[2]
@@ -151,7 +144,7 @@ def test_bad_values_never_leak(bad):
 @pytest.mark.parametrize("d", [1e20, 1e30])
 def test_offsets_far_beyond_the_image_fall_back_without_warnings(d):
     """d so large that offsets in pixels overflow an integer: clipped, never cast raw."""
-    frame = flat_plane(d=(d, d, d), lighting=_shadow_edge())
+    frame = flat_plane(d=(d, d, d), lighting=shadow_edge())
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # e.g. "invalid value encountered in cast"
         _, est, shaded = run(frame, 8)

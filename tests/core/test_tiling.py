@@ -15,11 +15,12 @@ import math
 import numpy as np
 import pytest
 
+from cvsss.core import synthetic
 from cvsss.core.frame import Crop, Frame
 from cvsss.core.methods import METHODS, MethodOptions, make_processor
 from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.profiles.factory import frame_profile
-from cvsss.core.synthetic import flat_plane, scene_frame
+from cvsss.core.synthetic import flat_plane
 from cvsss.core.tiling import (
     InlineExecutor,
     StatePiece,
@@ -43,29 +44,8 @@ STEP = (3, 2)  # content moves this far (x, y) per frame
 
 
 def moving_frame(number: int, width: int = W, height: int = H, step=STEP) -> Frame:
-    """The synthetic flash scene, shifted by ``step`` pixels (x, y) per frame, with motion."""
-    base = scene_frame("flash", number, width, height)
-    sx, sy = step[0] * number, step[1] * number
-
-    def shift(a):
-        return np.roll(a, (sy, sx), axis=(0, 1))
-
-    yy, xx = np.mgrid[0:height, 0:width]
-    jitter = 0.45 * np.sin(0.7 * xx + 1.3 * yy + number)
-    motion = np.stack([-step[0] + jitter, -step[1] - jitter], axis=-1).astype(np.float32)
-    # A band of pixels whose motion points off screen (a disocclusion marker).
-    motion[:4, :] = 1e7
-    return Frame(
-        number=number,
-        lighting=shift(base.lighting),
-        albedo=shift(base.albedo),
-        combined=shift(base.combined),
-        depth=shift(base.depth),
-        material=shift(base.material),
-        camera=base.camera,
-        materials=base.materials,
-        motion=motion,
-    )
+    """The moving flash scene with a band of pixels whose motion points off screen."""
+    return synthetic.moving_frame(number, width, height, step, offscreen_rows=4)
 
 
 FRAMES = [moving_frame(n) for n in (1, 2, 3)]

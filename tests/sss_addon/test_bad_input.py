@@ -17,13 +17,12 @@ import builtins
 import errno
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 import pytest
+from cli_helpers import run_cli
 
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import scene_frame
@@ -224,20 +223,7 @@ def test_one_line_without_traceback_in_a_real_process(passes, tmp_path):
     data = (passes / "0002.exr").read_bytes()
     (passes / "0002.exr").write_bytes(data[: len(data) // 2])
     for args in ([str(bad)], [str(bad), "--eta-cv", "0"], [str(passes)]):
-        proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "cvsss.sss_addon.cli.main",
-                "post",
-                *args,
-                "--out",
-                str(tmp_path / "o"),
-            ],
-            capture_output=True,
-            text=True,
-            check=False,
-        )
+        proc = run_cli("post", *args, "--out", str(tmp_path / "o"))
         assert proc.returncode == 2
         assert "Traceback" not in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
@@ -399,22 +385,7 @@ def test_render_bad_input(tmp_path, capfd, args, fragments):
 def test_render_not_a_blend_file(tmp_path):
     fake = tmp_path / "scene.blend"
     fake.write_text("not a blend file")
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "cvsss.sss_addon.cli.main",
-            "render",
-            str(fake),
-            "--out",
-            str(tmp_path / "out"),
-            "--frames",
-            "1",
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    proc = run_cli("render", str(fake), "--out", str(tmp_path / "out"), "--frames", "1")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "scene.blend" in proc.stderr
     lines = proc.stderr.strip().splitlines()

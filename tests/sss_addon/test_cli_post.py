@@ -1,11 +1,10 @@
 """`cvsss post` on a directory of real EXR files written by core.exr (no bpy)."""
 
 import csv
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import sequence
@@ -97,21 +96,7 @@ def test_post_is_deterministic(passes, tmp_path):
     ],
 )
 def test_bad_parameters_exit_2_with_one_line(passes, tmp_path, args, fragment):
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "cvsss.sss_addon.cli.main",
-            "post",
-            str(passes),
-            "--out",
-            str(tmp_path / "o"),
-            *args,
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    proc = run_cli("post", str(passes), "--out", str(tmp_path / "o"), *args)
     assert proc.returncode == 2
     assert fragment in proc.stderr
     assert "Traceback" not in proc.stderr

@@ -1,11 +1,10 @@
 """`cvsss post` with every method, every profile of Table 2, presets and separable kernels."""
 
 import csv
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.methods import METHODS
@@ -147,22 +146,8 @@ def test_user_errors_exit_2_with_one_line(passes, tmp_path, args, fragment, caps
 
 
 def test_missing_preset_from_the_command_line_process(passes, tmp_path):
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "cvsss.sss_addon.cli.main",
-            "post",
-            str(passes),
-            "--out",
-            str(tmp_path / "o"),
-            "--quiet",
-            "--profile",
-            "dipole",
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
+    proc = run_cli(
+        "post", str(passes), "--out", str(tmp_path / "o"), "--quiet", "--profile", "dipole"
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith("error: material 'skin' (slot 1): the dipole profile needs")

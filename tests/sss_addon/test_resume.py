@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from cvsss.core.io import atomic, checkpoint
 from cvsss.core.io.exr import read_result, write_passes
@@ -120,17 +121,7 @@ def test_killed_run_resumes_bit_identical(passes, full, tmp_path):
     safe = min(len(d) for d in done.values())
     kept = {p: s for p, s in stamps(out).items() if p.suffix == ".exr" and int(p.stem) <= safe}
 
-    resumed = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "cvsss.sss_addon.cli.main",
-            *post_argv(passes, out, "--resume", args=ARGS[:-1]),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    resumed = run_cli(*post_argv(passes, out, "--resume", args=ARGS[:-1]))
     assert resumed.returncode == 0, resumed.stderr
     assert f"as_ccv: resuming after frame {len(done['as_ccv'])}" in resumed.stdout
     assert_same_run(full, out)
