@@ -177,7 +177,7 @@ def estimate_distant(
         and type(profile) is BurleyProfile  # a subclass may sample differently
         and backends.resolve(backend) == "numba"
     ):
-        from .estimator_numba import ORTHO, PERSPECTIVE, PLANAR, pixel_sums
+        from .estimator_numba import ORTHO, PERSPECTIVE, PLANAR, kernel
 
         if surf is None:
             mode, unit, centre, area = PLANAR, (1.0, 1.0), (0.0, 0.0), fwfh[:1]
@@ -188,7 +188,7 @@ def estimate_distant(
         texel = np.empty((light.shape[0], 4), f32)
         texel[:, :3] = light
         texel[:, 3] = depth_flat
-        sums, vs, fb = pixel_sums(
+        sums, vs, fb = kernel(total)(
             sx_all,
             sy_all,
             act_counts,

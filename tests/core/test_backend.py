@@ -155,7 +155,7 @@ def test_tiles_equal_whole_image_on_numba_and_match_numpy():
 
 def test_thread_count_does_not_change_the_result():
     """Pixels are independent: one thread and all threads give the same bits."""
-    frame = scene_frame("flash", 3, 128, 72)
+    frame = scene_frame("flash", 3, 256, 144)
     profile = frame_profile(frame, SSSParams())
     geom = prepare(frame, profile, surface_distance=True)
     counts = np.full(geom.size, 16)
@@ -170,6 +170,19 @@ def test_thread_count_does_not_change_the_result():
     assert np.array_equal(one.distant, many.distant)
     assert np.array_equal(one.variance, many.variance)
     assert one.fallback == many.fallback
+    # Small calls run the serial build of the same code: the same bits again.
+    from cvsss.core.mc import estimator_numba
+
+    assert counts.sum() >= estimator_numba.PARALLEL_MIN_SAMPLES
+    before = estimator_numba.PARALLEL_MIN_SAMPLES
+    try:
+        estimator_numba.PARALLEL_MIN_SAMPLES = counts.sum() + 1
+        assert estimator_numba.kernel(int(counts.sum())) is estimator_numba.pixel_sums_serial
+        serial = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    finally:
+        estimator_numba.PARALLEL_MIN_SAMPLES = before
+    assert np.array_equal(serial.distant, many.distant)
+    assert np.array_equal(serial.variance, many.variance)
 
 
 def test_other_profiles_run_on_numpy_with_the_numba_backend():
@@ -275,13 +288,14 @@ def test_compiled_kernel_is_cached_on_disk():
         import json
         from cvsss.core.mc import backend, estimator_numba
         seconds = backend.warm_up()
-        stats = estimator_numba.pixel_sums.stats
-        print(json.dumps({"s": seconds, "hits": sum(stats.cache_hits.values()),
-                          "misses": sum(stats.cache_misses.values())}))
+        kernels = (estimator_numba.pixel_sums, estimator_numba.pixel_sums_serial)
+        print(json.dumps({"s": seconds,
+                          "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
+                          "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels)}))
         """
     )
     backend.warm_up()  # compiles (and writes the cache) if nothing did yet
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert out["hits"] >= 1 and out["misses"] == 0
+    assert out["hits"] >= 2 and out["misses"] == 0
