@@ -111,7 +111,11 @@ def main(zip_path: str, work: str) -> None:
     backend = sys.modules[MOD + ".core.mc.backend"]
     report["backend"] = backend.describe(s.backend)
     kernel = sys.modules.get(MOD + ".core.mc.estimator_numba")
-    report["kernel_signatures"] = 0 if kernel is None else len(kernel.pixel_sums.signatures)
+    report["kernel_signatures"] = (
+        0
+        if kernel is None
+        else sum(len(k.signatures) for k in (kernel.pixel_sums, kernel.pixel_sums_serial))
+    )
     report["numba_file"] = getattr(sys.modules.get("numba"), "__file__", None)
     report["llvmlite_file"] = getattr(sys.modules.get("llvmlite"), "__file__", None)
 

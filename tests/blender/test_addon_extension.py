@@ -162,5 +162,5 @@ def test_installed_zip_runs_the_compiled_backend(installed):
     site = os.path.join("extensions", ".local")
     assert site in report["numba_file"] and site in report["llvmlite_file"]
     assert report["backend"].startswith("numba (0.60.0, ")
-    assert report["kernel_signatures"] == 1
+    assert report["kernel_signatures"] >= 1  # compiled and called (serial at this size)
     assert report["render"] == ["FINISHED"]
