@@ -100,8 +100,10 @@ def _pixel_sums(
 ):
     """Per-pixel sums of the weighted differences of P active pixels.
 
-    Parameters (all per active pixel unless said otherwise; dtypes as the
-    NumPy path builds them in :func:`core.mc.estimator.estimate_distant`)
+    Arrays are per active pixel unless said otherwise, with the dtypes the
+    NumPy path builds in :func:`core.mc.estimator.estimate_distant`.
+
+    Parameters
     ----------
     hx, hy : (P,) uint32, hashed R2 offsets
     counts : (P,) int64, samples m ≥ 1
