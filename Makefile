@@ -50,9 +50,11 @@ cv1d: $(STAMP)
 fig2: $(STAMP)
 	$(BIN)/cvsss fig2 --out $(OUT)
 
-# Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, ~9 min on
-# 2 cores, of which 3.5 min are the tiled post on 1 and 2 Dask workers at 1280x720 (section
-# workers, issue 16). `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
+# Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, per sampling
+# backend (NumPy, numba; issue 15). 26 min on 2 cores of which one was busy with another job:
+# frame times at 720p-1440p 8.5 min, the Pareto sweep on both backends 5.7 min, the tiled
+# post on 1 and 2 Dask workers at 1280x720 2 min (section workers, issue 16).
+# `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
 bench: $(STAMP)
 	$(BIN)/cvsss bench --out $(OUT)/bench
 
@@ -68,24 +70,31 @@ clean:
 	rm -rf $(OUT) dist build *.egg-info .pytest_cache .ruff_cache
 
 # -- Blender extension -------------------------------------------------------------------
-# `make extension` builds dist/cvsss-<version>.zip with Blender's own extension tool
-# and validates it; the OpenEXR wheels it bundles are fetched by `make wheels`.
+# `make extension` builds one zip per platform, dist/cvsss-<version>-<platform>.zip, with
+# Blender's own extension tool (--split-platforms: each zip carries only its platform's
+# wheels), validates each and prints their sizes. The wheels the manifest lists (OpenEXR;
+# numba + llvmlite for the compiled backend) are fetched by `make wheels`.
 BLENDER_EXT     := $(VENV)/lib/python3.11/site-packages/bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py
 EXT_VERSION      = $(shell sed -n 's/^version *= *"\(.*\)"/\1/p' blender_manifest.toml)
-OPENEXR_VERSION := 3.5.3
-WHEEL_PLATFORMS := manylinux_2_28_x86_64 manylinux_2_28_aarch64 win_amd64 macosx_11_0_arm64 macosx_10_15_x86_64
-WHEELS          := $(foreach p,$(WHEEL_PLATFORMS),wheels/openexr-$(OPENEXR_VERSION)-cp311-cp311-$(p).whl)
+# The manifest is the one list: every "./wheels/….whl" line of it.
+WHEELS          := $(shell sed -n 's|^ *"\./\(wheels/[^"]*\.whl\)".*|\1|p' blender_manifest.toml)
 
 .PHONY: wheels extension
 
 wheels: $(WHEELS)
 
-wheels/openexr-$(OPENEXR_VERSION)-cp311-cp311-%.whl: | $(STAMP)
-	$(BIN)/python -m pip download --quiet OpenEXR==$(OPENEXR_VERSION) --only-binary=:all: --no-deps \
-		--python-version 3.11 --platform $* --dest wheels
+# wheels/<name>-<version>-<python>-<abi>-<platform tags>.whl: pip is given the first platform tag.
+wheels/%.whl: | $(STAMP)
+	$(BIN)/python -m pip download --quiet --only-binary=:all: --no-deps --python-version 3.11 \
+		--platform $(firstword $(subst ., ,$(word 5,$(subst -, ,$*)))) \
+		"$(word 1,$(subst -, ,$*))==$(word 2,$(subst -, ,$*))" --dest wheels
 	@test -f $@ || (echo "error: pip did not fetch $@ (see wheels/)" >&2; exit 1)
 
 extension: wheels | $(STAMP)
 	@mkdir -p dist
-	$(BIN)/python $(BLENDER_EXT) build --source-dir . --output-dir dist
-	$(BIN)/python $(BLENDER_EXT) validate dist/cvsss-$(EXT_VERSION).zip
+	rm -f dist/cvsss-$(EXT_VERSION)-*.zip
+	$(BIN)/python $(BLENDER_EXT) build --split-platforms --source-dir . --output-dir dist
+	@for z in dist/cvsss-$(EXT_VERSION)-*.zip; do \
+		$(BIN)/python $(BLENDER_EXT) validate $$z || exit 1; \
+	done
+	@ls -l dist/cvsss-$(EXT_VERSION)-*.zip | awk '{printf "%-48s %6.1f MB\n", $$9, $$5 / 1e6}'

@@ -42,6 +42,8 @@ HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
 DISTANCES = ("surface", "planar")
 TEMPORAL_MODES = ("multiplicative", "subtractive")
+#: Implementations of the Monte Carlo sampling step (core.mc.backend).
+BACKENDS = ("auto", "numpy", "numba")
 MAX_SPP = 4096
 
 #: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
@@ -441,6 +443,15 @@ class SSSParams(_Params):
         hi=64.0,
         lo_open=True,
         ui_lo=1e-3,
+        advanced=True,
+    )
+    backend: str = param(
+        "auto",
+        label="Backend",
+        help="Implementation of the Monte Carlo sampling step: the compiled numba kernel when "
+        "numba imports, else NumPy (auto); NumPy; or numba (falls back to NumPy with a warning "
+        "where numba is missing). Both take the same samples and agree to float32 rounding",
+        choices=BACKENDS,
         advanced=True,
     )
     chunk_samples: int = param(

@@ -13,6 +13,7 @@ import bpy
 from bpy.types import Operator
 
 from ..core.io.errors import CheckpointError, OutputError, PassError
+from ..core.mc.backend import describe as describe_backend
 from ..core.params import ParameterError
 from ..sss_addon.blender import render
 from ..sss_addon.blender.passes import RenderError
@@ -47,12 +48,17 @@ class _SteppedOperator:
 
     bl_options = {"REGISTER"}  # noqa: RUF012
     verb = "Processed"
+    #: The job runs the Monte Carlo step: the summary says which backend sampled.
+    samples = False
 
     def steps(self, context):
         raise NotImplementedError
 
     def _summary(self, job, done: int) -> str:
-        return f"{self.verb} {done}/{len(job.frames)} frame(s) into {job.out}"
+        text = f"{self.verb} {done}/{len(job.frames)} frame(s) into {job.out}"
+        if self.samples:  # numba is missing where its wheel is: say what ran
+            text += f"; sampling on {describe_backend(job.params.backend)}"
+        return text
 
     def execute(self, context):
         try:
@@ -140,6 +146,7 @@ class SSS_OT_render_sequence(_SteppedOperator, Operator):
 
     bl_idname = "sss.render_sequence"
     bl_label = "Render Sequence"
+    samples = True
 
     def steps(self, context):
         job = render.job_from_scene(context.scene, context=context, images=True, log=print)

@@ -15,7 +15,25 @@ def _modules():
     return (properties, native, operators, panels)
 
 
+def _console_log(on: bool) -> None:
+    """Show the core's log lines (e.g. which sampling backend runs) on Blender's console."""
+    import logging
+
+    logger = logging.getLogger("cvsss")
+    mine = [h for h in logger.handlers if getattr(h, "cvsss_console", False)]
+    if on and not mine:
+        handler = logging.StreamHandler()
+        handler.cvsss_console = True
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+    elif not on:
+        for handler in mine:
+            logger.removeHandler(handler)
+
+
 def register():
+    _console_log(True)
     for module in _modules():
         module.register()
 
@@ -23,3 +41,4 @@ def register():
 def unregister():
     for module in reversed(_modules()):
         module.unregister()
+    _console_log(False)

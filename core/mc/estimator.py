@@ -35,6 +35,11 @@ the planar estimator on a fronto-parallel plane.
 Work is compacted: only pixels with m > 0 are visited, their samples are laid
 out contiguously, processed in bounded batches, and summed back with
 ``np.bincount``. Cost is proportional to Σm, never to the maximum count.
+
+Two backends take the same samples (:mod:`core.mc.backend`): this module's
+NumPy batches, and a compiled loop per pixel
+(:mod:`core.mc.estimator_numba`) for the Burley profile when numba imports.
+They agree to float32 rounding.
 """
 
 from __future__ import annotations
@@ -45,7 +50,9 @@ import numpy as np
 
 from ..geometry import Geometry
 from ..profiles.base import Profile
+from ..profiles.burley import BurleyProfile
 from ..sampling.sequence import pixel_hashes, r2_points_fixed
+from . import backend as backends
 
 TWO_PI = 2.0 * np.pi
 
@@ -94,6 +101,7 @@ def estimate_distant(
     depth_slope: float,
     chunk_samples: int = 1 << 20,
     variance: bool = False,
+    backend: str = "numpy",
 ) -> DistantEstimate:
     """Estimate Î for every SSS pixel with the given per-pixel sample counts.
 
@@ -108,6 +116,8 @@ def estimate_distant(
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
     chunk_samples : int, batch size bound (memory)
     variance : bool, also estimate the variance of Î's luminance from the samples
+    backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.mc.backend`);
+        numba runs the Burley profile, other profiles run on NumPy
 
     Returns
     -------
@@ -160,12 +170,78 @@ def estimate_distant(
     ws_a = np.ascontiguousarray(geom.weight_scale[active].T, dtype=np.float32)
     gam_cm = np.ascontiguousarray(gam.T, dtype=np.float32)
     g_s32 = g_s.astype(np.float32)
-    # Channel-major lighting: one contiguous row per channel.
-    light_cm = np.ascontiguousarray(light.T, dtype=np.float32)
-    depth32 = depth_flat.astype(np.float32)
     surf = geom.surface
     fwfh = (geom.fw[active] * geom.fh[active]).astype(np.float32)
-    for a, b in _chunks(act_counts, chunk_samples):
+    if (
+        backend != "numpy"
+        and type(profile) is BurleyProfile  # a subclass may sample differently
+        and backends.resolve(backend) == "numba"
+    ):
+        from .estimator_numba import ORTHO, PERSPECTIVE, PLANAR, kernel
+
+        if surf is None:
+            mode, unit, centre, area = PLANAR, (1.0, 1.0), (0.0, 0.0), fwfh[:1]
+        else:
+            mode = ORTHO if surf.ortho else PERSPECTIVE
+            unit, centre, area = surf.unit, surf.centre, surf.area
+        f32 = np.float32
+        texel = np.empty((light.shape[0], 4), f32)
+        texel[:, :3] = light
+        texel[:, 3] = depth_flat
+        sums, vs, fb = kernel(total)(
+            sx_all,
+            sy_all,
+            act_counts,
+            edges,
+            lo_t,
+            hi_t,
+            mat_a.astype(np.int32, copy=False),
+            x_a,
+            y_a,
+            inv_fw,
+            inv_fh,
+            idx_a.astype(np.int64, copy=False),
+            z_a,
+            np.ones(active.size, np.bool_) if core_a is None else core_a,
+            np.ascontiguousarray(gam, dtype=np.float32),
+            g_s32,
+            chrom_a,
+            fwfh,
+            texel,
+            mat_flat.astype(np.int32, copy=False),
+            area,
+            profile._d32,
+            profile._inv3d,
+            profile._inv4d,
+            profile._rmax,
+            f32(profile.truncate),
+            profile.inverse == "fast",
+            w,
+            h,
+            f32(full_w),
+            f32(full_h),
+            f32(ox),
+            f32(oy),
+            slope,
+            mode,
+            f32(unit[0]),
+            f32(unit[1]),
+            f32(unit[0] * unit[1]),
+            f32(centre[0]),
+            f32(centre[1]),
+            variance,
+        )
+        distant[active] += sums / act_counts[:, None]
+        fallback = int(fb.sum())
+        if var_sum is not None:
+            var_sum[active] += vs
+        chunks = ()
+    else:
+        # Channel-major lighting: one contiguous row per channel.
+        light_cm = np.ascontiguousarray(light.T, dtype=np.float32)
+        depth32 = depth_flat.astype(np.float32)
+        chunks = _chunks(act_counts, chunk_samples)
+    for a, b in chunks:
         c = act_counts[a:b]
         n = int(c.sum())
         m = b - a

@@ -151,6 +151,7 @@ class MonteCarloProcessor:
             depth_slope=p.depth_slope,
             chunk_samples=p.chunk_samples,
             variance=self.method.temporal == "guided",
+            backend=p.backend,
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 

@@ -4,6 +4,7 @@ Properties ▸ Material (whether the material takes part and its Burley shape)."
 import bpy
 from bpy.types import Panel
 
+from ...core.mc import backend as mc_backend
 from ...core.methods import METHODS
 from . import materials as sss_materials
 from .native import native_notes
@@ -132,6 +133,7 @@ class SSS_PT_render(_RenderPanel, Panel):
             box.label(text=f"PSNR: {s.last_psnr:.2f} dB" if s.last_psnr > 0 else "PSNR: –")
             if s.last_psnr_gt > 0:
                 box.label(text=f"PSNR vs Cycles: {s.last_psnr_gt:.2f} dB")
+            box.label(text=f"Backend: {mc_backend.describe(s.backend)}")
         else:
             box.label(text="No frame processed yet")
 
@@ -152,6 +154,9 @@ class SSS_PT_render_advanced(_RenderPanel, Panel):
                 row = col.row()
                 row.prop(s, name)
                 row.active = not name.startswith("separable_") or s.method == "separable"
+                if name == "backend":
+                    # Which implementation runs here (numba is missing where no wheel exists).
+                    col.label(text=f"Runs: {mc_backend.describe(s.backend)}", icon="INFO")
 
 
 class SSS_PT_material(Panel):

@@ -7,10 +7,12 @@ means is documented there). This front-end adds what core does not do:
   (``python -m cvsss.sss_addon.cli.bench --rss-worker JSON``, VmHWM from
   ``/proc/self/status``, or ``ru_maxrss`` where there is no /proc);
 - the machine it ran on (``environment``: CPU, load average, git revision);
+- the numba kernel's compile time (``jit``): a fresh process compiles it into an
+  empty cache directory, a second one loads it from there;
 - the files: ``OUT/bench.json``, ``OUT/quality_calibration.json`` (and the
   shipped ``core/data/quality_calibration.json`` with ``--write-calibration``),
-  ``pareto.png``, ``quality.png`` and ``scaling.png``; progress and a summary
-  of the targets on stdout.
+  ``pareto.png``, ``pareto_backends.png``, ``quality.png`` and ``scaling.png``;
+  progress and a summary of the targets and the ratios per backend on stdout.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -32,6 +35,7 @@ import numpy as np
 
 from ...core.eval import bench, quality
 from ...core.io.atomic import make_folder
+from ...core.mc import backend as mc_backend
 from ...core.methods import make_processor
 from ...core.params import SSSParams
 from ...core.synthetic import scene_frame
@@ -208,6 +212,7 @@ def rss_worker(spec: dict) -> dict:
         peak = _max_rss_mb()
     return {
         "peak_rss_mb": peak,
+        "backend": mc_backend.resolve(params.backend),
         "post_process_peak_mb": post_peak,
         "baseline_mb": baseline,
         "input_mb": input_mb,
@@ -232,6 +237,46 @@ def measure_rss(workers: int) -> bench.MeasureRss:
             return list(pool.map(_spawn_rss, specs))
 
     return measure
+
+
+# -- JIT compile time ------------------------------------------------------------------
+_WARM_UP = (
+    "import json, time; t0 = time.perf_counter(); "
+    "from cvsss.core.mc import backend; b = backend.resolve('numba'); "
+    "t1 = time.perf_counter(); s = backend.warm_up() if b == 'numba' else None; "
+    "print(json.dumps({'import_s': t1 - t0, 'warm_up_s': s}))"
+)
+
+
+def measure_jit() -> dict:
+    """Compile time of the numba kernel, separately from everything else.
+
+    Two fresh processes share an empty ``NUMBA_CACHE_DIR``: the first compiles
+    the kernel and writes the cache (``compile_s``), the second loads it
+    (``cache_load_s``); ``import_s`` is importing numba. ``{"skipped": …}``
+    where numba does not import.
+    """
+    ok, what = mc_backend.numba_status()
+    if not ok:
+        return {"skipped": what}
+    out: dict[str, Any] = {"numba": what}
+    with tempfile.TemporaryDirectory(prefix="cvsss-numba-") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for key in ("compile_s", "cache_load_s"):
+            proc = subprocess.run(
+                [sys.executable, "-c", _WARM_UP],
+                capture_output=True,
+                text=True,
+                env=env,
+                timeout=600,
+                check=False,
+            )
+            if proc.returncode != 0:
+                return {**out, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
+            res = json.loads(proc.stdout.strip().splitlines()[-1])
+            out[key] = res["warm_up_s"]
+            out.setdefault("import_s", res["import_s"])
+    return out
 
 
 # -- the whole run ------------------------------------------------------------------
@@ -304,7 +349,10 @@ def run_bench(
         "command": REGENERATE,
         "config": cfg.to_dict(),
         "environment": environment(),
+        "jit": measure_jit(),
     }
+    if log:
+        log(f"[{time.perf_counter() - start:7.1f} s] jit: {result['jit']}")
     result.update(
         bench.run_sections(
             cfg,
@@ -364,6 +412,25 @@ def format_summary(result: dict) -> str:
         v = t["value"]
         vs = "n/a" if v is None else f"{v:.4g}"
         lines.append(f"{name:<38} {vs:>10}   {t['target']:>10}   {'yes' if t['met'] else 'NO'}")
+    ns, gather = result.get("ns_per_sample", {}), result.get("gather_ns_per_sample", {})
+    for b, sizes in ns.items():
+        for size, v in sizes.items():
+            g = gather.get(b, {}).get(size)
+            ratio = v / g if v and g else float("nan")
+            default = " (default)" if b == result.get("backend_default") else ""
+            lines.append(
+                f"{b}{default} {size}: {v:.1f} ns/sample, gather roofline {g:.2f} ns: {ratio:.1f}x"
+            )
+    frames = result.get("frame_time_ms") or {}
+    for b in result.get("cost", {}).get("backends", []):
+        for size, rows in frames.get(b, {}).items():
+            text = ", ".join(f"{m} {ms:.0f}" for m, ms in rows.items())
+            lines.append(f"frame ms {b} {size}: {text}")
+    jit = result.get("jit") or {}
+    if "compile_s" in jit:
+        lines.append(
+            f"numba JIT: compile {jit['compile_s']:.1f} s, load from cache {jit['cache_load_s']:.2f} s"
+        )
     w = result.get("workers") or {}
     if "speedup_2_vs_1" in w:
         lines.append(
@@ -392,6 +459,8 @@ def write_plots(result: dict, out: Path) -> list[Path]:
     par = result.get("pareto")
     if par:
         written.append(_plot_pareto(plt, par, out / "pareto.png"))
+        if par.get("by_backend"):
+            written.append(_plot_pareto_backends(plt, par, out / "pareto_backends.png"))
         written.append(_plot_quality(plt, par, out / "quality.png"))
     written.append(_plot_scaling(plt, result, out / "scaling.png"))
     return written
@@ -458,6 +527,31 @@ def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
     axes[0].legend(fontsize=7, loc="lower right")
     axes[0].set_title(f"{par['scene']} {par['size']}, {par['frames']} frames")
     axes[1].set_title("same points against mean spp")
+    return save(fig, path)
+
+
+def _plot_pareto_backends(plt: Any, par: dict, path: Path) -> Path:
+    """PSNR against pass time of the Monte Carlo sweep, one panel per sampling backend."""
+    backends = list(par["by_backend"])
+    fig, axes = plt.subplots(1, len(backends), figsize=(6 * len(backends), 4.8), squeeze=False)
+    for ax, b in zip(axes[0], backends):
+        pts = [p for p in par["by_backend"][b] if p["method"] != "separable"]
+        for method in dict.fromkeys(p["method"] for p in pts):
+            mine = sorted((p for p in pts if p["method"] == method), key=lambda p: p["pass_ms"])
+            ax.plot(
+                [p["pass_ms"] for p in mine],
+                [p["psnr_db"] for p in mine],
+                "o-",
+                color=_COLOURS.get(method),
+                label=method,
+            )
+        front = sorted((p for p in pts if p["front"]), key=lambda p: p["pass_ms"])
+        ax.plot([p["pass_ms"] for p in front], [p["psnr_db"] for p in front], "k--", lw=1)
+        ax.set_xscale("log")
+        ax.set_xlabel("sampling pass (ms)")
+        ax.set_ylabel("PSNR vs 1024 spp (dB)")
+        ax.set_title(f"{b}{' (default)' if b == par.get('backend_default') else ''}, {par['size']}")
+        ax.legend(fontsize=8)
     return save(fig, path)
 
 

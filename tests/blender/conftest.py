@@ -189,7 +189,8 @@ def _fetch_wheels(manifest: dict) -> None:
         path = ROOT / wheel
         if path.is_file():
             continue
-        name, version, python, _abi, platform = path.stem.split("-")
+        name, version, python, _abi, platforms = path.stem.split("-")
+        platform = platforms.split(".")[0]  # pip takes one tag of a compound one
         subprocess.run(
             [
                 sys.executable,
@@ -215,26 +216,41 @@ def _fetch_wheels(manifest: dict) -> None:
 
 @pytest.fixture(scope="session")
 def extension_zip(tmp_path_factory):
-    """dist zip built with Blender's extension tool (same commands as `make extension`)."""
+    """The Linux x64 zip built with Blender's extension tool (same commands as `make extension`:
+    one zip per platform, each validated)."""
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     _fetch_wheels(manifest)
     out = tmp_path_factory.mktemp("dist")
     tool = _blender_ext()
     build = subprocess.run(
-        [sys.executable, str(tool), "build", "--source-dir", str(ROOT), "--output-dir", str(out)],
+        [
+            sys.executable,
+            str(tool),
+            "build",
+            "--split-platforms",
+            "--source-dir",
+            str(ROOT),
+            "--output-dir",
+            str(out),
+        ],
         capture_output=True,
         text=True,
         check=False,
         timeout=300,
     )
     assert build.returncode == 0, build.stdout + build.stderr
-    path = out / f"cvsss-{manifest['version']}.zip"
-    check = subprocess.run(
-        [sys.executable, str(tool), "validate", str(path)],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=300,
+    platforms = [p.replace("-", "_") for p in manifest["platforms"]]
+    zips = sorted(out.glob("*.zip"))
+    assert [z.name for z in zips] == sorted(
+        f"cvsss-{manifest['version']}-{p}.zip" for p in platforms
     )
-    assert check.returncode == 0, check.stdout + check.stderr
-    return path
+    for path in zips:
+        check = subprocess.run(
+            [sys.executable, str(tool), "validate", str(path)],
+            capture_output=True,
+            text=True,
+            check=False,
+            timeout=300,
+        )
+        assert check.returncode == 0, check.stdout + check.stderr
+    return out / f"cvsss-{manifest['version']}-linux_x64.zip"

@@ -68,6 +68,18 @@ def main(zip_path: str, work: str) -> None:
             filepath=zip_path, repo=REPO, enable_on_install=True
         )
     )
+    # Blender installs the zip's wheels into extensions/.local; put that first on the
+    # path so the add-on's lazy import of numba takes the bundled wheel, not the venv's.
+    local = [p for p in sys.path if os.path.join("extensions", ".local") in p]
+    report["wheel_site"] = sorted(
+        name.split("-")[0]
+        for site in local
+        if os.path.isdir(site)
+        for name in os.listdir(site)
+        if name.endswith(".dist-info")
+    )
+    report["numba_preloaded"] = "numba" in sys.modules
+    sys.path[:0] = [p for p in local if os.path.isdir(p)]
     report["enabled"] = MOD in prefs.addons
     module = sys.modules[MOD]
     report["module_file"] = module.__file__
@@ -95,6 +107,17 @@ def main(zip_path: str, work: str) -> None:
     report["render"] = sorted(bpy.ops.sss.render_sequence())
     report["outputs"] = sorted(os.listdir(s.output_dir))
     report["images"] = sorted(img.name for img in bpy.data.images if img.name.startswith("SSS "))
+    # The render went through the compiled kernel, imported from the bundled wheel.
+    backend = sys.modules[MOD + ".core.mc.backend"]
+    report["backend"] = backend.describe(s.backend)
+    kernel = sys.modules.get(MOD + ".core.mc.estimator_numba")
+    report["kernel_signatures"] = (
+        0
+        if kernel is None
+        else sum(len(k.signatures) for k in (kernel.pixel_sums, kernel.pixel_sums_serial))
+    )
+    report["numba_file"] = getattr(sys.modules.get("numba"), "__file__", None)
+    report["llvmlite_file"] = getattr(sys.modules.get("llvmlite"), "__file__", None)
 
     addon_utils.disable(MOD, default_set=True)
     report["enabled_after"] = MOD in prefs.addons

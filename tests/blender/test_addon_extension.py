@@ -30,9 +30,20 @@ def test_zip_content(extension_zip):
     assert "__init__.py" in names and "blender_manifest.toml" in names
     assert "sss_addon/cli/main.py" in names and "core/mc/processor.py" in names
     assert "demo_blend/scenes.py" in names and "operators/sequence.py" in names
+    # --split-platforms: the Linux x64 zip carries the Linux x64 wheels of the manifest.
+    assert extension_zip.name == f"cvsss-{manifest['version']}-linux_x64.zip"
     assert sorted(n for n in names if n.startswith("wheels/")) == sorted(
-        w.removeprefix("./") for w in manifest["wheels"]
+        w.removeprefix("./")
+        for w in manifest["wheels"]
+        if "linux" in w and w.endswith("x86_64.whl")
     )
+    assert {n.split("/")[1].split("-")[0] for n in names if n.startswith("wheels/")} == {
+        "openexr",
+        "numba",
+        "llvmlite",
+    }
+    built = tomllib.loads(zipfile.ZipFile(extension_zip).read("blender_manifest.toml").decode())
+    assert built["build"]["generated"]["platforms"] == ["linux-x64"]
     for bad in (
         r"^tests/",
         r"^\.",
@@ -44,7 +55,10 @@ def test_zip_content(extension_zip):
         r"^requirements\.txt$",
         r"^requirements-farm\.txt$",
         r"^farm/",
-        r"^wheels/(?!openexr-)",  # the farm extra's dependencies are never bundled
+        # Only OpenEXR and the compiled backend's wheels, for this zip's platform only;
+        # the farm extra's dependencies (dask, openjd) are never bundled.
+        r"^wheels/(?!openexr-|numba-|llvmlite-)",
+        r"^wheels/.*(win_|macosx_|aarch64)",
         r"^out/",
         r"^dist/",
         r"\.blend$",
@@ -52,7 +66,14 @@ def test_zip_content(extension_zip):
         assert not [n for n in names if re.search(bad, n)], bad
 
 
-def test_install_enable_check_disable(extension_zip, tmp_path):
+@pytest.fixture(scope="module")
+def installed(extension_zip, tmp_path_factory):
+    """(extension_check.py's report, its work folder): run once, it renders."""
+    work = tmp_path_factory.mktemp("installed")
+    return _run_check(extension_zip, work), work
+
+
+def _run_check(extension_zip, tmp_path) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
     run = subprocess.run(
         [
@@ -70,7 +91,11 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
-    report = json.loads(line.removeprefix("REPORT "))
+    return json.loads(line.removeprefix("REPORT "))
+
+
+def test_install_enable_check_disable(installed):
+    report, tmp_path = installed
 
     assert report["install"] == ["FINISHED"] and report["enabled"]
     assert report["module_file"].startswith(str(tmp_path / "repo" / "cvsss"))
@@ -126,3 +151,16 @@ def test_install_enable_check_disable(extension_zip, tmp_path):
     assert report["operators_left"] == []
     assert report["handlers_left"] == []
     assert report["uninstalled"]
+
+
+def test_installed_zip_runs_the_compiled_backend(installed):
+    """Blender installs the zip's numba/llvmlite wheels; the operators' render ran the kernel
+    imported from them (not from the test environment)."""
+    report, _ = installed
+    assert {"numba", "llvmlite", "openexr"} <= set(report["wheel_site"])
+    assert not report["numba_preloaded"]
+    site = os.path.join("extensions", ".local")
+    assert site in report["numba_file"] and site in report["llvmlite_file"]
+    assert report["backend"].startswith("numba (0.60.0, ")
+    assert report["kernel_signatures"] >= 1  # compiled and called (serial at this size)
+    assert report["render"] == ["FINISHED"]

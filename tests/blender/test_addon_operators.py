@@ -4,6 +4,7 @@ import csv
 import json
 import os
 
+import numba
 import numpy as np
 import pytest
 
@@ -378,6 +379,7 @@ def _modal_operator(op_class):
     class Modal(sequence._SteppedOperator):
         steps = op_class.steps
         verb = op_class.verb
+        samples = op_class.samples
 
         def __init__(self):
             self.reports = []
@@ -429,7 +431,11 @@ def test_modal_advances_one_frame_per_tick_and_esc_cancels(demo, tmp_path, snaps
         for _ in range(4)
     ]
     assert results == [{"RUNNING_MODAL"}] * 3 + [{"FINISHED"}]
-    assert op.reports[-1] == ("INFO", f"Processed 3/3 frame(s) into {tmp_path / 'out'}")
+    assert op.reports[-1] == (
+        "INFO",
+        f"Processed 3/3 frame(s) into {tmp_path / 'out'}; sampling on "
+        f"numba ({numba.__version__}, {numba.get_num_threads()} threads)",
+    )
     assert not state_diff(before, scene_state(demo))
 
 

@@ -271,6 +271,8 @@ class _Layout:
 def test_panels_draw(fresh):
     from types import SimpleNamespace
 
+    import numba
+
     from cvsss.sss_addon.blender import panels
 
     log = []
@@ -305,6 +307,21 @@ def test_panels_draw(fresh):
     log.clear()
     panels.SSS_PT_render.draw(SimpleNamespace(layout=_Layout(log)), context)
     assert ("label", "Mean spp: 12.50") in log and ("label", "PSNR: 48.00 dB") in log
+    # Which sampling backend runs: numba is pinned in this environment.
+    assert (
+        "label",
+        f"Backend: numba ({numba.__version__}, {numba.get_num_threads()} threads)",
+    ) in log
+    log.clear()
+    panels.SSS_PT_render_advanced.draw(SimpleNamespace(layout=_Layout(log)), context)
+    assert ("prop", "backend") in log and (
+        "label",
+        "Runs: numba (" + numba.__version__ + ", " f"{numba.get_num_threads()} threads)",
+    ) in log
+    s.backend = "numpy"
+    log.clear()
+    panels.SSS_PT_render_advanced.draw(SimpleNamespace(layout=_Layout(log)), context)
+    assert ("label", "Runs: NumPy") in log
 
     material = bpy.data.materials.new("m")
     material.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value = 1

@@ -288,10 +288,48 @@ def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
         )
         assert row["overhead_fraction"] == pytest.approx(row["update_ms"] / row["total_ms"])
     assert rows["fixed"]["update_ms"] < min(rows[m]["update_ms"] for m in bench.ADAPTIVE)
-    assert r["ns_per_sample"] == {"method": "as_ccv", "32x18": rows["as_ccv"]["ns_per_sample"]}
+    # Both backends measured side by side; the default one (numba here) fills "sizes".
+    by = r["cost"]["by_backend"]
+    assert r["backend_default"] == r["cost"]["backend_default"] == "numba"
+    assert set(by) == {"numpy", "numba"} and rows is by["numba"]["32x18"]
+    assert r["cost_method"] == "as_ccv"
+    for key in ("ns_per_sample", "gather_ns_per_sample"):
+        assert r[key] == {b: {"32x18": by[b]["32x18"]["as_ccv"][key]} for b in ("numpy", "numba")}
+    for method in bench.COST_METHODS:  # the same samples on both backends
+        assert by["numpy"]["32x18"][method]["samples"] == rows[method]["samples"] > 0
     assert r["overhead_fraction"]["as_ocv"] == rows["as_ocv"]["overhead_fraction"]
     breakdown = r["cost"]["breakdown"]
     assert "unavailable" not in breakdown, breakdown.get("unavailable")
+
+
+def test_smoke_frame_time_per_backend_size_and_method(smoke):
+    ft = smoke[0]["frame_time_ms"]
+    assert ft["backend_default"] == "numba" and ft["frames"] == bench.QUICK.frame_frames
+    for b in ("numpy", "numba"):
+        assert set(ft[b]) == {"32x18", "48x27"}
+        for rows in ft[b].values():
+            assert set(rows) == set(bench.QUICK.frame_methods)
+            assert all(ms > 0 for ms in rows.values())
+
+
+def test_smoke_pareto_per_backend_same_samples_other_times(smoke):
+    par = smoke[0]["pareto"]
+    by = par["by_backend"]
+    assert par["backend_default"] == "numba" and set(by) == {"numpy", "numba"}
+    numba_pts = {p["label"]: p for p in by["numba"]}
+    numpy_pts = {p["label"].removesuffix(" [numpy]"): p for p in by["numpy"]}
+    mc = {label for label, p in numba_pts.items() if p["method"] != "separable"}
+    assert mc and mc == set(numpy_pts)
+    for label in mc:
+        a, b = numba_pts[label], numpy_pts[label]
+        assert a["spp"] == b["spp"], label
+        assert a["psnr_db"] == pytest.approx(b["psnr_db"], abs=1e-3), label
+        assert a["pass_ms"] > 0 and b["pass_ms"] > 0
+    for pts in by.values():
+        assert any(p["front"] for p in pts)
+        front = [p for p in pts if p["front"]]
+        others = [p for p in pts if p["method"] != "separable"]
+        assert not any(_dominated(p, q) for p in front for q in others)
 
 
 def test_smoke_fit_r2_matches_an_independent_fit(smoke):

@@ -56,7 +56,7 @@ def test_bench_flags_select_the_configuration():
 
 @pytest.mark.parametrize("sections", ["speed", "cost,speed", ","])
 def test_bench_refuses_unknown_sections(sections):
-    with pytest.raises(ValueError, match="--sections must be a subset of cost,fit"):
+    with pytest.raises(ValueError, match="--sections must be a subset of cost,frames,fit"):
         bench.run(_args("bench", "--sections", sections))
 
 
@@ -124,15 +124,19 @@ def test_quick_run_writes_bench_json(quick_run):
         "command",
         "config",
         "environment",
+        "jit",
         "section_s",
         "cpu_share",
         "cost",
+        "frame_time_ms",
         "samples_time_r2",
         "coverage_scaling",
         "resolution_scaling",
         "peak_rss_mb",
         "pareto",
         "workers",
+        "backend_default",
+        "cost_method",
         "ns_per_sample",
         "gather_ns_per_sample",
         "overhead_fraction",
@@ -144,7 +148,8 @@ def test_quick_run_writes_bench_json(quick_run):
     assert data["config"] == json.loads(json.dumps(core_bench.QUICK.to_dict()))
     assert data["environment"]["cpus"] == data["targets"]["bench_wall_s"]["cpus"]
     assert set(data["targets"]) == {
-        "ns_per_sample_vs_gather",
+        "ns_per_sample_vs_gather_numpy",
+        "ns_per_sample_vs_gather_numba",
         "overhead_fraction_as_ocv",
         "samples_time_r2",
         "peak_rss_mb_largest",
@@ -155,10 +160,38 @@ def test_quick_run_writes_bench_json(quick_run):
     assert sorted(p.name for p in out.iterdir()) == [
         "bench.json",
         "pareto.png",
+        "pareto_backends.png",
         "quality.png",
         "quality_calibration.json",
         "scaling.png",
     ]
+
+
+def test_quick_run_reports_both_backends_and_the_jit(quick_run):
+    _, _, result, lines = quick_run
+    assert result["backend_default"] == "numba"
+    assert (
+        set(result["ns_per_sample"])
+        == set(result["gather_ns_per_sample"])
+        == {
+            "numpy",
+            "numba",
+        }
+    )
+    for b, sizes in result["ns_per_sample"].items():
+        assert set(sizes) == {"32x18"} and sizes["32x18"] > 0
+        ratio = sizes["32x18"] / result["gather_ns_per_sample"][b]["32x18"]
+        target = result["targets"][f"ns_per_sample_vs_gather_{b}"]
+        assert target["value"] == pytest.approx(ratio)
+        assert target["target"] == ("<= 4" if b == "numba" else "<= 15")
+    # Compiling (empty cache) is slower than loading what it wrote.
+    jit = result["jit"]
+    assert jit["numba"].startswith("numba ")
+    assert jit["compile_s"] > jit["cache_load_s"] > 0
+    summary = bench.format_summary(result)
+    assert "numba (default) 32x18:" in summary and "numpy 32x18:" in summary
+    assert f"numba JIT: compile {jit['compile_s']:.1f} s" in summary
+    assert "frame ms numba 48x27: fixed" in summary
 
 
 def test_quick_run_measures_the_tiled_post_on_workers(quick_run):
@@ -192,7 +225,7 @@ def test_quick_run_writes_the_calibration_and_plots(quick_run):
     assert shipped.read_text(encoding="utf-8") == (out / "quality_calibration.json").read_text(
         encoding="utf-8"
     )
-    assert result["plots"] == ["pareto.png", "quality.png", "scaling.png"]
+    assert result["plots"] == ["pareto.png", "pareto_backends.png", "quality.png", "scaling.png"]
     assert all(_is_png(out / name) for name in result["plots"])
 
 

@@ -1,0 +1,301 @@
+"""The numba and NumPy backends of the sampling step take the same samples (core.mc.backend).
+
+Both implement :func:`core.mc.estimator.estimate_distant` operation by
+operation in float32; only log/exp/sin/cos come from different libraries, so
+the estimates agree to float32 rounding. The tolerance used throughout is
+``RTOL = 4e-6`` of the largest value of the image (~32 float32 ulps; the
+runs below measure ≤ 1.6e-7 on these frames). Everything discrete must be
+*equal*: sample counts per pixel, samples taken, samples that fell back. (A
+sample within an ulp of a pixel boundary could in principle round to the
+neighbouring pixel in one backend; with these fixed seeds and frames none
+does, and the equalities would catch one that did.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from test_tiling import FAST, FRAMES, differences, run_tiled, run_whole, same_state
+
+from cvsss.core.camera import Camera
+from cvsss.core.geometry import prepare
+from cvsss.core.mc import backend
+from cvsss.core.mc.estimator import estimate_distant
+from cvsss.core.methods import METHODS, MethodOptions, make_processor
+from cvsss.core.params import ParameterError, SSSParams
+from cvsss.core.profiles.burley import BurleyProfile
+from cvsss.core.profiles.factory import frame_profile
+from cvsss.core.synthetic import flat_plane, scene_frame
+
+numba = pytest.importorskip("numba")
+
+RTOL = 4e-6
+TIMINGS = ("pass_ms", "update_ms", "total_ms")
+EXACT = ("counts", "valid_history", "mask", "samples", "fallback", "draws", "spp")
+
+
+def run(name: str, params: SSSParams, frames=FRAMES):
+    proc = make_processor(name, params, MethodOptions())
+    return [proc.process(f) for f in frames], proc.state()
+
+
+def assert_same_result(a, b, rtol: float = RTOL) -> None:
+    """Every field of two FrameResults: discrete ones equal, images within rtol·max."""
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if f.name in TIMINGS:
+            continue
+        if f.name in EXACT or not isinstance(x, np.ndarray | float):
+            assert np.array_equal(x, y), f.name
+            continue
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        scale = float(np.max(np.abs(x), initial=0.0))
+        np.testing.assert_allclose(y, x, rtol=0, atol=rtol * scale + 1e-30, err_msg=f.name)
+
+
+def test_numba_runs_here():
+    """The pinned environment has numba: this lane measures the compiled kernel, not a fallback."""
+    assert backend.resolve("auto") == "numba"
+    assert backend.resolve("numpy") == "numpy"
+    assert "numba" in backend.describe("auto")
+
+
+@pytest.mark.parametrize("distance", ["surface", "planar"])
+@pytest.mark.parametrize("name", list(METHODS))
+def test_every_method_same_result(name, distance):
+    """Three moving frames (history, reprojection, disocclusion band): same images and counts."""
+    params = dataclasses.replace(FAST, distance=distance)
+    a, state_a = run(name, params.replace(backend="numpy"))
+    b, state_b = run(name, params.replace(backend="numba"))
+    for x, y in zip(a, b):
+        assert_same_result(x, y)
+    assert state_a.keys() == state_b.keys()
+    for k in state_a:
+        scale = (
+            float(np.max(np.abs(state_a[k]), initial=0.0)) if state_a[k].dtype.kind == "f" else 0
+        )
+        if state_a[k].dtype.kind == "f":
+            np.testing.assert_allclose(state_b[k], state_a[k], rtol=0, atol=RTOL * scale + 1e-30)
+        else:
+            assert np.array_equal(state_a[k], state_b[k]), k
+
+
+@pytest.mark.parametrize("inverse", ["exact", "fast"])
+@pytest.mark.parametrize("distance", ["surface", "planar"])
+def test_estimate_with_variance_fast_inverse_and_a_chromatic_profile(inverse, distance):
+    """The variance path (temporal methods), both Burley samplers, per-channel profiles."""
+    frame = scene_frame("flash", 2, 160, 90)
+    profile = frame_profile(frame, SSSParams(burley_inverse=inverse))
+    assert profile.chromatic()[1:].any()  # per-channel weights are exercised
+    geom = prepare(frame, profile, surface_distance=distance == "surface")
+    counts = (np.arange(geom.size) % 37).astype(np.int32)  # includes m = 0 and m = 1
+    kw = dict(frame=2, seed=7, depth_slope=2.0, variance=True)
+    a = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    b = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, backend="numba", **kw)
+    assert (a.samples, a.fallback) == (b.samples, b.fallback)
+    assert 0 < a.fallback < a.samples
+    scale = np.abs(a.distant).max()
+    np.testing.assert_allclose(b.distant, a.distant, rtol=0, atol=RTOL * scale)
+    # inf (one sample) and 0 (no sample) exactly where NumPy has them.
+    assert np.array_equal(np.isinf(a.variance), np.isinf(b.variance))
+    assert np.array_equal(a.variance == 0, b.variance == 0)
+    fin = np.isfinite(a.variance)
+    # Σy² − (Σy)²/m cancels: relative error ~1e-4 of the spread, not of the value.
+    np.testing.assert_allclose(b.variance[fin], a.variance[fin], rtol=1e-3, atol=1e-12)
+
+
+@pytest.mark.parametrize("distance", ["surface", "planar"])
+@pytest.mark.parametrize("d", [(0.02, 0.01, 0.005), (0.01, 0.01, 0.01)], ids=["rgb", "grey"])
+def test_orthographic_camera_and_constant_lighting(d, distance):
+    """Ortho camera, one profile for all channels (w_c = γ_c) or three; constant B gives
+    L = B exactly (the centre control), any m."""
+    plane = flat_plane(48, 32, d=d, depth=2.0)
+    ortho = Camera(**{**dataclasses.asdict(plane.camera), "type": "ORTHO", "ortho_scale": 1.5})
+    yy, xx = np.mgrid[0:32, 0:48]
+    light = np.stack([np.sin(0.3 * xx), np.cos(0.2 * yy), 0.01 * xx * yy], -1) + 1.5
+    plane = dataclasses.replace(plane, camera=ortho, lighting=light.astype(np.float32))
+    profile = frame_profile(plane, SSSParams())
+    assert bool(profile.chromatic()[1]) == (d[0] != d[2])
+    geom = prepare(plane, profile, surface_distance=distance == "surface")
+    assert (geom.surface is not None and geom.surface.ortho) == (distance == "surface")
+    counts = np.full(geom.size, 24)
+    kw = dict(frame=1, seed=3, depth_slope=2.0)
+    a = estimate_distant(geom, plane.lighting, plane.depth, profile, counts, **kw)
+    b = estimate_distant(geom, plane.lighting, plane.depth, profile, counts, backend="numba", **kw)
+    np.testing.assert_allclose(b.distant, a.distant, rtol=0, atol=RTOL * np.abs(a.distant).max())
+    const = np.full_like(plane.lighting, 0.37)
+    c = estimate_distant(geom, const, plane.depth, profile, counts, backend="numba", **kw)
+    b_ = const.reshape(-1, 3)[geom.index].astype(np.float64)
+    assert np.array_equal(
+        (1 - geom.gamma) * b_ + c.distant, (1 - geom.gamma) * b_ + geom.gamma * b_
+    )
+
+
+def test_tiles_equal_whole_image_on_numba_and_match_numpy():
+    """core.tiling's bit-identity holds per backend (global pixel coordinates seed the hash)."""
+    params = FAST.replace(backend="numba")
+    whole, whole_state = run_whole("as_ocv_t", params, MethodOptions(), FRAMES)
+    tiled, tiled_state, session = run_tiled("as_ocv_t", params, MethodOptions(), FRAMES)
+    assert len(session.cores) == 12
+    assert all(differences(a, b) == [] for a, b in zip(whole, tiled))
+    assert same_state(whole_state, tiled_state)
+    numpy_tiled, _, _ = run_tiled(
+        "as_ocv_t", FAST.replace(backend="numpy"), MethodOptions(), FRAMES
+    )
+    for a, b in zip(numpy_tiled, tiled):
+        assert_same_result(a, b)
+
+
+def test_thread_count_does_not_change_the_result():
+    """Pixels are independent: one thread and all threads give the same bits."""
+    frame = scene_frame("flash", 3, 256, 144)
+    profile = frame_profile(frame, SSSParams())
+    geom = prepare(frame, profile, surface_distance=True)
+    counts = np.full(geom.size, 16)
+    kw = dict(frame=3, seed=1, depth_slope=2.0, variance=True, backend="numba")
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    finally:
+        numba.set_num_threads(before)
+    many = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    assert np.array_equal(one.distant, many.distant)
+    assert np.array_equal(one.variance, many.variance)
+    assert one.fallback == many.fallback
+    # Small calls run the serial build of the same code: the same bits again.
+    from cvsss.core.mc import estimator_numba
+
+    assert counts.sum() >= estimator_numba.PARALLEL_MIN_SAMPLES
+    before = estimator_numba.PARALLEL_MIN_SAMPLES
+    try:
+        estimator_numba.PARALLEL_MIN_SAMPLES = counts.sum() + 1
+        assert estimator_numba.kernel(int(counts.sum())) is estimator_numba.pixel_sums_serial
+        serial = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    finally:
+        estimator_numba.PARALLEL_MIN_SAMPLES = before
+    assert np.array_equal(serial.distant, many.distant)
+    assert np.array_equal(serial.variance, many.variance)
+
+
+def test_other_profiles_run_on_numpy_with_the_numba_backend():
+    """The kernel implements Burley; another profile is computed by the NumPy path, not refused."""
+    frame = flat_plane(32, 24)
+    burley = frame_profile(frame, SSSParams())
+    assert isinstance(burley, BurleyProfile)
+    geom = prepare(frame, burley)
+    counts = np.full(geom.size, 8)
+    kw = dict(frame=1, seed=0, depth_slope=2.0)
+
+    class Other(BurleyProfile):  # not the Burley class itself: same numbers, NumPy path
+        pass
+
+    other = Other(burley.d)
+    a = estimate_distant(geom, frame.lighting, frame.depth, other, counts, backend="numba", **kw)
+    b = estimate_distant(geom, frame.lighting, frame.depth, burley, counts, backend="numpy", **kw)
+    assert np.array_equal(a.distant, b.distant)  # bit-identical: it is the NumPy path
+
+
+def test_backend_parameter_is_validated():
+    assert SSSParams().backend == "auto"
+    with pytest.raises(ParameterError, match="backend must be one of auto, numpy, numba"):
+        SSSParams(backend="cuda")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        backend.resolve("cuda")
+
+
+_NO_NUMBA = textwrap.dedent(
+    """
+    import json, logging, sys
+
+    class Refuse:
+        def find_spec(self, name, path=None, target=None):
+            if name.split(".")[0] in ("numba", "llvmlite"):
+                raise ImportError(f"{name} is not installed")
+            return None
+
+    sys.meta_path.insert(0, Refuse())
+    records = []
+    handler = logging.Handler()
+    handler.emit = lambda r: records.append((r.levelname, r.getMessage()))
+    logging.getLogger("cvsss").addHandler(handler)
+    logging.getLogger("cvsss").setLevel(logging.INFO)
+
+    import numpy as np
+    from cvsss.core.methods import make_processor
+    from cvsss.core.mc import backend
+    from cvsss.core.params import SSSParams
+    from cvsss.core.synthetic import scene_frame
+
+    res = make_processor("as_ccv", SSSParams(backend="numba")).process(scene_frame("flash", 1, 64, 36))
+    out = {
+        "auto": backend.resolve("auto"),
+        "describe": backend.describe("auto"),
+        "numba_loaded": "numba" in sys.modules,
+        "samples": int(res.samples),
+        "finite": bool(np.isfinite(res.composite).all()),
+        "log": records,
+    }
+    print(json.dumps(out))
+    """
+)
+
+
+def test_clean_fallback_without_numba():
+    """Where numba cannot be imported (no wheel for the platform) NumPy runs and the log says so."""
+    env = {**os.environ, "PYTHONHASHSEED": "0"}
+    proc = subprocess.run(
+        [sys.executable, "-c", _NO_NUMBA], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["auto"] == "numpy"
+    assert out["numba_loaded"] is False
+    assert out["samples"] > 0 and out["finite"]
+    assert out["describe"].startswith("NumPy (numba unavailable (ImportError")
+    # Asked for numba, got NumPy: a warning that says why; "auto" just informs.
+    assert [
+        lvl
+        for lvl, msg in out["log"]
+        if msg.startswith("cvsss: Monte Carlo backend numpy (asked numba")
+    ] == ["WARNING"]
+    assert any("NumPy fallback" in msg for _, msg in out["log"])
+    assert any(
+        lvl == "INFO" and msg.startswith("cvsss: Monte Carlo backend numpy (asked auto")
+        for lvl, msg in out["log"]
+    )
+
+
+def test_cache_dir_is_per_user():
+    path = backend.cache_dir()
+    assert path.parts[-2:] == ("cvsss", "numba")
+    if sys.platform.startswith("linux"):
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache")
+        assert str(path).startswith(base)
+
+
+def test_compiled_kernel_is_cached_on_disk():
+    """After the first compile, a fresh process loads the kernel from numba's disk cache."""
+    code = textwrap.dedent(
+        """
+        import json
+        from cvsss.core.mc import backend, estimator_numba
+        seconds = backend.warm_up()
+        kernels = (estimator_numba.pixel_sums, estimator_numba.pixel_sums_serial)
+        print(json.dumps({"s": seconds,
+                          "hits": sum(sum(k.stats.cache_hits.values()) for k in kernels),
+                          "misses": sum(sum(k.stats.cache_misses.values()) for k in kernels)}))
+        """
+    )
+    backend.warm_up()  # compiles (and writes the cache) if nothing did yet
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["hits"] >= 2 and out["misses"] == 0
