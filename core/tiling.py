@@ -24,6 +24,9 @@ Why the core pixels equal the whole-image run bit for bit:
   surface area at a landing pixel reads its neighbours (the ``+ 1``); the
   history it reprojects from lies within ``ceil(|motion|)``: all inside the
   window, where passes and history are those of the whole image;
+- a per-pixel rule that needs a frame-level yardstick (the temporal reuse's
+  ε) takes the whole image's, computed once per frame and carried by the
+  crop (:attr:`core.frame.Crop.light_scale`);
 - the frame-level figures of a tile count its core pixels only, and the whole
   image's are formed from the assembled images or summed integers (spp is
   Σ samples / Σ SSS pixels, never a mean of tile means).
