@@ -32,17 +32,20 @@ test-bpy: $(STAMP)
 
 # The main job (82 min on 2 cores, ground truth included): builds the demo_blend scenes, renders their passes with
 # Cycles, post-processes every method and writes $(OUT)/demo/report.md. Scale with
-# RES=640x360 FRAMES=240 SCENES=flash,boids REF_EVERY=1 (SCENES empty: all three);
+# RES=640x360 FRAMES=240 SCENES=flash,boids REF_EVERY=1 GT_EVERY=40 (SCENES empty: all three;
+# GT_EVERY=0: no Cycles ground truth);
 # SOURCE=synthetic generates flash and regular passes analytically, without Blender.
 RES       ?= 320x180
 FRAMES    ?= 120
 SCENES    ?=
 REF_EVERY ?= 5
+GT_EVERY  ?= 20
 SOURCE    ?= blender
 
 demo: $(STAMP)
 	$(BIN)/cvsss demo --out $(OUT)/demo --source $(SOURCE) --res $(RES) --frames $(FRAMES) \
-		$(if $(SCENES),--scenes $(SCENES)) --reference-every $(REF_EVERY)
+		$(if $(SCENES),--scenes $(SCENES)) --reference-every $(REF_EVERY) \
+		--ground-truth-every $(GT_EVERY)
 
 cv1d: $(STAMP)
 	$(BIN)/cvsss cv1d --out $(OUT)
