@@ -136,7 +136,7 @@ class BenchConfig:
     # whole-frame time per backend and method
     frame_sizes: tuple[Size, ...] = ((1280, 720), (1920, 1080), (2560, 1440))
     frame_methods: tuple[str, ...] = COST_METHODS
-    frame_frames: int = 2
+    frame_frames: int = 1
     # samples → time fit
     fit_size: Size = (640, 360)
     fit_fixed_spp: tuple[int, ...] = (8, 16, 32, 64)
@@ -592,8 +592,11 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
 def section_frames(cfg: BenchConfig, log: Log = None, start: float | None = None) -> dict:
     """Whole-frame time (ms) per backend, size and method: ``{backend: {size: {method: ms}}}``.
 
-    Each configuration processes ``frame_frames`` frames (the first has no
-    history) and the last one is recorded.
+    Each configuration processes ``frame_frames`` frames and the last one is
+    recorded. The default, 1, records the first frame: no history yet, so
+    the adaptive methods take n_init = β_max samples per pixel, as they still
+    do on the second frame — an upper bound of a steady frame's time at half
+    the cost of timing the second.
     """
     backends = available_backends(cfg)
     out: dict[str, Any] = {
@@ -610,7 +613,7 @@ def section_frames(cfg: BenchConfig, log: Log = None, start: float | None = None
             for m in cfg.frame_methods
         ]
         for job in jobs:
-            job.record_from = len(frames) - 1  # the warm frame: history present
+            job.record_from = len(frames) - 1  # the last frame processed
         run_jobs(jobs, len(frames))
         for job in jobs:
             (rec,) = job.records
