@@ -8,6 +8,7 @@ scene-referred Rec. 709; depth is planar, in scene units.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -126,6 +127,10 @@ def _clean(name: str, array: np.ndarray, shape: tuple, channels: int | None) -> 
     return a
 
 
+#: The Frame fields that hold one value per pixel (cropped, shifted, tiled alike).
+PIXEL_PASSES = ("lighting", "albedo", "combined", "depth", "material", "motion", "sss_weight")
+
+
 @dataclass
 class Frame:
     """Passes of one rendered frame.
@@ -185,6 +190,17 @@ class Frame:
     lighting_passes: tuple[str, ...] = ()
     sss_weight: np.ndarray | None = None
     crop: Crop | None = None
+
+    def map_pixels(self, fn, **changes) -> Frame:
+        """A copy with ``fn`` applied to every per-pixel pass (:data:`PIXEL_PASSES`).
+
+        ``fn`` maps an (H, W, …) array to an (H', W', …) array (a crop, a
+        shift); passes that are None stay None; ``changes`` replace fields
+        after that, as :func:`dataclasses.replace` does.
+        """
+        mapped = {name: getattr(self, name) for name in PIXEL_PASSES}
+        mapped = {k: None if a is None else fn(a) for k, a in mapped.items()}
+        return dataclasses.replace(self, **{**mapped, **changes})
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth)

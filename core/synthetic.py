@@ -268,17 +268,6 @@ def moving_frame(
     motion = np.stack([-step[0] + jitter, -step[1] - jitter], axis=-1).astype(np.float32)
     motion[:offscreen_rows, :] = 1e7
 
-    def shift(a: np.ndarray) -> np.ndarray:
-        return np.roll(a, (step[1] * number, step[0] * number), axis=(0, 1))
-
-    return Frame(
-        number=number,
-        lighting=shift(base.lighting),
-        albedo=shift(base.albedo),
-        combined=shift(base.combined),
-        depth=shift(base.depth),
-        material=shift(base.material),
-        camera=base.camera,
-        materials=base.materials,
-        motion=motion,
+    return base.map_pixels(
+        lambda a: np.roll(a, (step[1] * number, step[0] * number), axis=(0, 1)), motion=motion
     )

@@ -182,22 +182,9 @@ def crop_frame(frame: Frame, box: Box, core: Box, light: np.ndarray | None = Non
         raise ValueError("crop_frame takes a whole frame, not a crop")
     y0, y1, x0, x1 = box
 
-    def cut(a: np.ndarray | None) -> np.ndarray | None:
-        return None if a is None else np.ascontiguousarray(a[y0:y1, x0:x1])
-
-    return Frame(
-        number=frame.number,
-        lighting=cut(frame.lighting),
-        albedo=cut(frame.albedo),
-        combined=cut(frame.combined),
-        depth=cut(frame.depth),
-        material=cut(frame.material),
-        camera=frame.camera,
-        materials=frame.materials,
-        motion=cut(frame.motion),
-        source=frame.source,
-        lighting_passes=frame.lighting_passes,
-        sss_weight=cut(frame.sss_weight),
+    return frame.map_pixels(
+        lambda a: np.ascontiguousarray(a[y0:y1, x0:x1]),
+        repaired=0,
         crop=Crop(
             image=frame.shape,
             origin=(y0, x0),
