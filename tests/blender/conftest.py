@@ -8,6 +8,7 @@ variable). Nothing touches the user's real Blender configuration.
 """
 
 import atexit
+import json
 import os
 import shutil
 import subprocess
@@ -78,6 +79,30 @@ def demo_blend(demo, tmp_path):
     path = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
     return path
+
+
+def _run_check_script(name: str, *args, cwd: Path) -> tuple[dict, str]:
+    """Run ``tests/blender/<name>`` in a fresh Python (no user resources); the run must
+    exit 0. Returns the JSON of its ``REPORT `` line and its whole stdout."""
+    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
+    run = subprocess.run(
+        [sys.executable, str(Path(__file__).with_name(name)), *map(str, args)],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=600,
+        env=env,
+        cwd=cwd,
+    )
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
+    return json.loads(line.removeprefix("REPORT ")), run.stdout
+
+
+@pytest.fixture(scope="session")
+def check_script():
+    """``check_script(name, *args, cwd=…)``: run a check script -> (report, stdout)."""
+    return _run_check_script
 
 
 # -- scene state snapshots (independent of the add-on's own snapshot code) ------------------

@@ -1,10 +1,7 @@
 """The extension as users get it: built by Blender's tool, installed, enabled, disabled."""
 
-import json
 import os
 import re
-import subprocess
-import sys
 import tomllib
 import zipfile
 from pathlib import Path
@@ -67,31 +64,11 @@ def test_zip_content(extension_zip):
 
 
 @pytest.fixture(scope="module")
-def installed(extension_zip, tmp_path_factory):
+def installed(extension_zip, tmp_path_factory, check_script):
     """(extension_check.py's report, its work folder): run once, it renders."""
     work = tmp_path_factory.mktemp("installed")
-    return _run_check(extension_zip, work), work
-
-
-def _run_check(extension_zip, tmp_path) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
-    run = subprocess.run(
-        [
-            sys.executable,
-            str(Path(__file__).with_name("extension_check.py")),
-            str(extension_zip),
-            str(tmp_path),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=600,
-        env=env,
-        cwd=tmp_path,
-    )
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
-    return json.loads(line.removeprefix("REPORT "))
+    report, _ = check_script("extension_check.py", extension_zip, work, cwd=work)
+    return report, work
 
 
 def test_install_enable_check_disable(installed):

@@ -5,10 +5,6 @@ on the same scene, frames and settings: its linear Composite, written with
 the scene's colour management (Image.save_render) for 8-bit formats.
 """
 
-import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -329,7 +325,9 @@ def test_movie_is_encoded_with_blenders_writer(scene, tmp_path):
     bpy.data.movieclips.remove(clip)
 
 
-def test_blender_b_renders_a_blend_with_apply_on_render(scene, tmp_path, extension_zip):
+def test_blender_b_renders_a_blend_with_apply_on_render(
+    scene, tmp_path, extension_zip, check_script
+):
     """``blender -b scene.blend -a`` with the extension installed from its zip (bpy module)."""
     scene.sss_settings.warmup_frames = 1
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}  # here, for comparison
@@ -337,30 +335,14 @@ def test_blender_b_renders_a_blend_with_apply_on_render(scene, tmp_path, extensi
     scene.render.filepath = str(tmp_path / "farm" / "f_")
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
-    env = {k: v for k, v in os.environ.items() if k != "BLENDER_USER_RESOURCES"}
-    run = subprocess.run(
-        [
-            sys.executable,
-            str(Path(__file__).with_name("native_check.py")),
-            str(extension_zip),
-            str(tmp_path / "work"),
-            str(blend),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=600,
-        env=env,
-        cwd=tmp_path,
+    report, stdout = check_script(
+        "native_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
     )
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    (line,) = (ln for ln in run.stdout.splitlines() if ln.startswith("REPORT "))
-    report = json.loads(line.removeprefix("REPORT "))
     assert report["install"] == ["FINISHED"] and report["render"] == ["FINISHED"]
     assert report["apply_on_render"] and report["scenes"] == ["Scene"]
     assert report["file_format"] == "PNG"
     # Quiet, useful progress: one line per frame, no word of the temporary pass files.
-    lines = run.stdout.splitlines()
+    lines = stdout.splitlines()
     assert [ln.split()[1:3] for ln in lines if ln.startswith("cvsss: frame")] == [
         ["frame", "1"],
         ["frame", "2"],
