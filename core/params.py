@@ -229,8 +229,9 @@ class SSSParams(_Params):
         ``None`` means β_max (a cold start samples generously: measured
         against Cycles, a first frame at β_min was worse than no subsurface
         at all; see README *Defaults*). Not a user setting.
-    chunk_samples : upper bound of samples per vectorised batch (~60 bytes
-        each). Not a user setting.
+    chunk_samples : samples per vectorised batch of the NumPy backend: small
+        enough that a batch's arrays (~120 bytes a sample) stay in the CPU's
+        cache. Not a user setting.
     """
 
     eta: float = param(
@@ -455,8 +456,8 @@ class SSSParams(_Params):
         advanced=True,
     )
     chunk_samples: int = param(
-        1 << 20,
-        help="Upper bound of samples processed in one vectorised batch (memory)",
+        1 << 15,
+        help="Samples processed in one vectorised batch of the NumPy backend (cache-sized)",
         unit="samples",
         lo=1024,
         hi=1 << 26,

@@ -86,9 +86,10 @@ from ..io.atomic import write_text
 from ..mc import backend as mc_backend
 from ..methods import METHODS, MethodOptions, Processor, make_processor
 from ..params import KERNELS, PAPER_DEFAULTS, SeparableParams, SSSParams
+from ..profiles import burley
 from ..profiles.factory import frame_profile
 from ..result import FrameResult
-from ..sampling.sequence import pixel_hashes, r2_points_fixed
+from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
 from ..synthetic import scene_frame
 from . import quality
 from .metrics import median3, psnr
@@ -469,11 +470,12 @@ def gather_ns_per_sample(
 def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
     """Per-sample cost of the sampling step's building blocks, measured in isolation.
 
-    What bounds the sampling step: each block is timed on ``n`` samples of
-    the same frame through the public functions the estimator calls
-    (best of 3), next to one float64 elementwise multiply (the cost of one
-    pass over a per-sample array: NumPy dispatch + memory traffic). A block
-    whose API changed is reported as unavailable instead of failing.
+    What bounds the NumPy path: each block is timed on ``n`` samples of the
+    same frame through the public functions the estimator calls (best of 3),
+    next to one float64 elementwise multiply (the cost of one pass over a
+    per-sample array: NumPy dispatch + memory traffic), and the formulas the
+    tables replace (``exact_inverse_formula``, ``pdf_exp``). A block whose API
+    changed is reported as unavailable instead of failing.
     """
     out: dict[str, Any] = {"samples": n}
     rng = np.random.default_rng(1)
@@ -481,25 +483,27 @@ def cost_breakdown(frame: Frame, params: SSSParams, n: int = 1 << 21) -> dict:
     geom = prepare(frame, profile)
     if geom.size == 0:
         return out
-    fast = frame_profile(frame, params.replace(burley_inverse="fast"))
     p = rng.integers(0, geom.size, n)
     k = rng.integers(1, 65, n)
     a, b = rng.random(n), rng.random(n)
     hx, hy = pixel_hashes(geom.x[p], geom.y[p], 1, params.seed)
-    channel = np.zeros(n, np.int64)
+    t = (rng.random(n) * 0.99 + 0.01).astype(np.float32)
+    scale = np.float32(burley.TABLE_SIZE / (params.truncate * 0.01))
+    v32 = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
     blocks: dict[str, Callable[[], Any]] = {
         "stream_multiply_f64": lambda: a * b,
         "log_f64": lambda: np.log(a),
         # Hashed once per active pixel (not per sample) by the estimator.
         "hash_offsets_per_pixel": lambda: pixel_hashes(geom.x[p], geom.y[p], 1, params.seed),
-        "r2_points": lambda: r2_points_fixed(hx, hy, k, dtype=np.float32),
-        "profile_sample": lambda: profile.sample(
-            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], channel
+        "r2_fixed": lambda: r2_fixed(hx, hy, k),
+        "exact_inverse_formula": lambda: burley.radius_from_tail(t, np.float32(0.01)),
+        # Tables of the Burley profile (AttributeError, reported, for other profiles).
+        "radius_table": lambda: burley.radius_from_table(t, profile._rtab, profile.truncate),
+        "pdf_exp": lambda: profile.pdf_channels(a.astype(np.float32), geom.mat[p]),
+        "pdf_table_1ch": lambda: burley.pdf_from_table(t, scale, np.float32(100.0), profile._pcols),
+        "direction_table": lambda: np.take(
+            DIRECTIONS, (v32 >> np.uint32(32 - DIRECTION_BITS)).astype(np.intp), axis=0
         ),
-        "profile_sample_fast_inverse": lambda: fast.sample(
-            a, geom.lo[p, 0], geom.hi[p, 0], geom.mat[p], channel
-        ),
-        "profile_pdf": lambda: profile.pdf(a * geom.r0[p], geom.mat[p]),
         "gather_take": lambda: np.take(
             np.ascontiguousarray(frame.lighting.reshape(-1, 3)), geom.index[p], axis=0
         ),

@@ -33,13 +33,30 @@ visible surface beyond r0 — still exact for constant lighting, and equal to
 the planar estimator on a fronto-parallel plane.
 
 Work is compacted: only pixels with m > 0 are visited, their samples are laid
-out contiguously, processed in bounded batches, and summed back with
-``np.bincount``. Cost is proportional to Σm, never to the maximum count.
+out contiguously, processed in batches small enough to stay in the CPU's
+cache, and summed back per pixel in sample order. Cost is proportional to
+Σm, never to the maximum count.
+
+What a sample costs
+-------------------
+Everything that depends only on the material slot and the sample's position
+in the profile is read from tables built once per profile
+(:mod:`core.profiles.burley`), not computed per sample: the radius (the
+inverse CDF, indexed by √t, CDF error < 5e-7), the channel mixture's density
+at that radius (the weights' denominator, from the same table position), and
+the unit pdf at the surface distance. The direction is one of 4096 bin
+centres read from :data:`core.sampling.sequence.DIRECTIONS`. The channel and
+the tail value are an affine map of the R2 coordinate per pixel (``t = t_a +
+t_b·u``). A sample is then integer hashing, a square root, a handful of
+table reads, the gather of its texel and a division — no logarithm,
+exponential or trigonometric call.
 
 Two backends take the same samples (:mod:`core.mc.backend`): this module's
 NumPy batches, and a compiled loop per pixel
 (:mod:`core.mc.estimator_numba`) for the Burley profile when numba imports.
-They agree to float32 rounding.
+They do the same float32 operations in the same order (no library calls on
+either side), so they agree to float32 rounding — on the test frames to the
+last bit.
 """
 
 from __future__ import annotations
@@ -50,11 +67,9 @@ import numpy as np
 
 from ..geometry import Geometry
 from ..profiles.base import Profile
-from ..profiles.burley import BurleyProfile
-from ..sampling.sequence import pixel_hashes, r2_points_fixed
+from ..profiles.burley import BurleyProfile, pdf_from_table
+from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
 from . import backend as backends
-
-TWO_PI = 2.0 * np.pi
 
 
 @dataclass
@@ -89,6 +104,140 @@ def _chunks(counts: np.ndarray, limit: int):
         start = stop
 
 
+@dataclass
+class Pixels:
+    """What the sampling loop reads per active pixel (P of them), built once per frame.
+
+    Both backends read these arrays, so they take the same samples.
+
+    Attributes
+    ----------
+    counts : (P,) int64, samples m ≥ 1
+    hx, hy : (P,) uint32, hashed R2 offsets (0.32 fixed point)
+    edges : (P, 4) float32, cumulative channel probabilities γ_c/Σγ (channel c is
+        drawn when edges[c] <= u < edges[c + 1])
+    t_a, t_b : (P, 3) float32, the distant region in the profile's u-space as an
+        affine map of the R2 coordinate u: a sample of channel c is at
+        ``t = t_a[c] + t_b[c]·u`` (Burley: the tail value, in [lo_c, hi_c]; other
+        profiles: the position in [0, 1) between their bounds)
+    d : (P, 3) float32, Burley shape d_c (scene units); zeros for other profiles
+    lo, hi : (P, 3) float32, the profile's sampling bounds (other profiles sample
+        between them)
+    x, y : (P,) float32, image coordinates; inv_fw : (P,) float32, 1/footprint width
+    idx : (P,) int64, flat index into the frame's arrays; z : (P,) float32, depth
+    mat : (P,) int32, compact slot; core : (P,) bool or None (a crop's core pixels)
+    gam : (P, 3) float32, γ_c; g_s : (P,) float32, Σγ; chrom : (P,) bool
+    fwfh : (P,) float32, footprint area (scene units², the ortho plane element)
+    ws : (3, P) float32, γ_c/mass_c (profiles with a per-pixel weight scale)
+    pscale, inv_d : (3, P) float32, Burley pdf table scale size/(truncate·d_c) and
+        1/d_c (:func:`core.profiles.burley.pdf_from_table`); zeros for other profiles
+    aspect : float32, footprint width / height (one per camera): the vertical
+        offset in pixels is the horizontal one times this
+    """
+
+    counts: np.ndarray
+    hx: np.ndarray
+    hy: np.ndarray
+    edges: np.ndarray
+    t_a: np.ndarray
+    t_b: np.ndarray
+    d: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    inv_fw: np.ndarray
+    idx: np.ndarray
+    z: np.ndarray
+    mat: np.ndarray
+    core: np.ndarray | None
+    gam: np.ndarray
+    g_s: np.ndarray
+    chrom: np.ndarray
+    fwfh: np.ndarray
+    ws: np.ndarray
+    pscale: np.ndarray
+    inv_d: np.ndarray
+    aspect: np.float32
+
+
+def active_pixels(
+    geom: Geometry, profile: Profile, counts: np.ndarray, active: np.ndarray, frame: int, seed: int
+) -> Pixels:
+    """:class:`Pixels` of the ``active`` SSS pixels (indices into ``geom``)."""
+    if active.size == geom.size:  # the usual case: no copies
+
+        def sel(values):
+            return values
+
+    else:
+
+        def sel(values):
+            return np.take(values, active, axis=0)
+
+    hx, hy = pixel_hashes(sel(geom.x), sel(geom.y), frame, seed)
+    gam = sel(geom.gamma)
+    g_s = sel(geom.gamma_sum)
+    # Channel c is chosen when edges[c] <= u < edges[c + 1], with edges the
+    # cumulative γ_c/Σγ; from the last channel with γ > 0 on, edges are set
+    # to exactly 1 so rounding can never select an empty channel.
+    g0, g1, g2 = gam[:, 0], gam[:, 1], gam[:, 2]
+    e1 = np.where((g1 > 0) | (g2 > 0), g0 / g_s, 1.0).astype(np.float32)
+    e2 = np.where(g2 > 0, (g0 + g1) / g_s, 1.0).astype(np.float32)
+    edges = np.empty((active.size, 4), np.float32)
+    edges[:, 0] = 0.0
+    edges[:, 1] = e1
+    edges[:, 2] = e2
+    edges[:, 3] = 1.0
+    # u ∈ [e_c, e_{c+1}) ↦ its position uu = (u − e_c)/(e_{c+1} − e_c) in the channel's
+    # interval ↦ (Burley) the tail t = hi − uu·(hi − lo): both affine in u.
+    e = edges.astype(np.float64)
+    width = e[:, 1:] - e[:, :3]
+    lo, hi = sel(geom.lo), sel(geom.hi)
+    with np.errstate(divide="ignore"):
+        slope = np.where(width > 0, 1.0 / np.maximum(width, 1e-300), 0.0)
+    mat = sel(geom.mat)
+    if type(profile) is BurleyProfile:
+        t_b = (lo - hi) * slope
+        t_a = hi - t_b * e[:, :3]
+        d = profile.d[mat]
+        pscale = np.take(profile._pscale, mat, axis=1)
+        inv_d = np.take(profile._inv_d, mat, axis=1)
+    else:
+        t_b = slope
+        t_a = -e[:, :3] * slope
+        d = np.zeros_like(lo)
+        pscale = inv_d = np.zeros((3, active.size), np.float32)
+    fw, fh = sel(geom.fw), sel(geom.fh)
+    f32 = np.float32
+    return Pixels(
+        counts=counts[active],
+        hx=hx,
+        hy=hy,
+        edges=edges,
+        t_a=t_a.astype(f32),
+        t_b=t_b.astype(f32),
+        d=d.astype(f32),
+        lo=lo.astype(f32),
+        hi=hi.astype(f32),
+        x=sel(geom.x).astype(f32),
+        y=sel(geom.y).astype(f32),
+        inv_fw=(1.0 / fw).astype(f32),
+        idx=sel(geom.index),
+        z=sel(geom.depth).astype(f32),
+        mat=mat.astype(np.int32, copy=False),
+        core=None if geom.core is None else sel(geom.core),
+        gam=gam.astype(f32),
+        g_s=g_s.astype(f32),
+        chrom=sel(geom.chromatic),
+        fwfh=(fw * fh).astype(f32),
+        ws=np.ascontiguousarray(sel(geom.weight_scale).T, dtype=f32),
+        pscale=pscale,
+        inv_d=inv_d,
+        aspect=f32(fw[0] / fh[0]) if active.size else f32(1.0),
+    )
+
+
 def estimate_distant(
     geom: Geometry,
     lighting: np.ndarray,
@@ -99,7 +248,7 @@ def estimate_distant(
     frame: int,
     seed: int,
     depth_slope: float,
-    chunk_samples: int = 1 << 20,
+    chunk_samples: int = 1 << 15,
     variance: bool = False,
     backend: str = "numpy",
 ) -> DistantEstimate:
@@ -114,7 +263,8 @@ def estimate_distant(
     counts : (P,) int, samples per SSS pixel (0 = direct only)
     frame, seed : int, select the per-pixel R2 offsets
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
-    chunk_samples : int, batch size bound (memory)
+    chunk_samples : int, samples per NumPy batch: small enough that a batch's
+        arrays stay in the CPU's cache (32768 samples ≈ 4 MB in all)
     variance : bool, also estimate the variance of Î's luminance from the samples
     backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.mc.backend`);
         numba runs the Burley profile, other profiles run on NumPy
@@ -123,242 +273,258 @@ def estimate_distant(
     -------
     DistantEstimate
     """
-    h, w = geom.shape
-    # A crop (core.tiling) places samples in image coordinates, with the image's
-    # bounds, and reads its own arrays; a sample that leaves the crop falls back.
-    full_h, full_w = geom.image_shape
-    oy, ox = geom.origin
-    light = lighting.reshape(-1, 3)
-    depth_flat = depth.reshape(-1)
-    mat_flat = geom.slots
-    distant = geom.gamma * light[geom.index].astype(np.float64)
+    distant = geom.gamma * lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     counts = np.asarray(counts, dtype=np.int64)
-    gsum = geom.gamma_sum
-    active = np.flatnonzero((counts > 0) & (gsum > 0))
+    active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
     total = int(counts[active].sum())
-    fallback = 0
-    var_sum = np.zeros((geom.size, 2)) if variance else None
     if total == 0:
         return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
-    core_a = None if geom.core is None else geom.core[active]
-    counted = total if core_a is None else int(counts[active][core_a].sum())
-    # Per active pixel quantities, computed once; samples expand them with
-    # np.repeat (a streaming copy) rather than random gathers.
-    sx_all, sy_all = pixel_hashes(geom.x[active], geom.y[active], frame, seed)
     act_counts = counts[active]
-    gam = geom.gamma[active]
-    g_s = gsum[active]
-    # Channel c is chosen when edges[c] <= u < edges[c + 1], with edges the
-    # cumulative γ_c/Σγ; from the last channel with γ > 0 on, edges are set
-    # to exactly 1 so rounding can never select an empty channel.
-    edges = np.zeros((active.size, 4))
-    edges[:, 1:3] = np.cumsum(gam / g_s[:, None], axis=1)[:, :2]
-    last = 2 - np.argmax(gam[:, ::-1] > 0, axis=1)
-    edges[np.arange(4)[None, :] > last[:, None]] = 1.0
-    edges = edges.astype(np.float32)
-    lo_t = geom.lo[active].astype(np.float32)
-    hi_t = geom.hi[active].astype(np.float32)
-    mat_a = geom.mat[active]
-    x_a = geom.x[active].astype(np.float32)
-    y_a = geom.y[active].astype(np.float32)
-    inv_fw = (1.0 / geom.fw[active]).astype(np.float32)
-    inv_fh = (1.0 / geom.fh[active]).astype(np.float32)
-    idx_a = geom.index[active]
-    z_a = geom.depth[active].astype(np.float32)
-    slope = np.float32(depth_slope)
-    chrom_a = geom.chromatic[active]
-    ws_a = np.ascontiguousarray(geom.weight_scale[active].T, dtype=np.float32)
-    gam_cm = np.ascontiguousarray(gam.T, dtype=np.float32)
-    g_s32 = g_s.astype(np.float32)
-    surf = geom.surface
-    fwfh = (geom.fw[active] * geom.fh[active]).astype(np.float32)
+    counted = total if geom.core is None else int(act_counts[geom.core[active]].sum())
     if (
         backend != "numpy"
         and type(profile) is BurleyProfile  # a subclass may sample differently
         and backends.resolve(backend) == "numba"
     ):
-        from .estimator_numba import ORTHO, PERSPECTIVE, PLANAR, kernel
+        from .estimator_numba import run_kernel
 
-        if surf is None:
-            mode, unit, centre, area = PLANAR, (1.0, 1.0), (0.0, 0.0), fwfh[:1]
-        else:
-            mode = ORTHO if surf.ortho else PERSPECTIVE
-            unit, centre, area = surf.unit, surf.centre, surf.area
-        f32 = np.float32
-        texel = np.empty((light.shape[0], 4), f32)
-        texel[:, :3] = light
-        texel[:, 3] = depth_flat
-        sums, vs, fb = kernel(total)(
-            sx_all,
-            sy_all,
-            act_counts,
-            edges,
-            lo_t,
-            hi_t,
-            mat_a.astype(np.int32, copy=False),
-            x_a,
-            y_a,
-            inv_fw,
-            inv_fh,
-            idx_a.astype(np.int64, copy=False),
-            z_a,
-            np.ones(active.size, np.bool_) if core_a is None else core_a,
-            np.ascontiguousarray(gam, dtype=np.float32),
-            g_s32,
-            chrom_a,
-            fwfh,
-            texel,
-            mat_flat.astype(np.int32, copy=False),
-            area,
-            profile._d32,
-            profile._inv3d,
-            profile._inv4d,
-            profile._rmax,
-            f32(profile.truncate),
-            profile.inverse == "fast",
-            w,
-            h,
-            f32(full_w),
-            f32(full_h),
-            f32(ox),
-            f32(oy),
-            slope,
-            mode,
-            f32(unit[0]),
-            f32(unit[1]),
-            f32(unit[0] * unit[1]),
-            f32(centre[0]),
-            f32(centre[1]),
-            variance,
+        sums, var_sums, fallback = run_kernel(
+            geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance
         )
-        distant[active] += sums / act_counts[:, None]
-        fallback = int(fb.sum())
-        if var_sum is not None:
-            var_sum[active] += vs
-        chunks = ()
     else:
-        # Channel-major lighting: one contiguous row per channel.
-        light_cm = np.ascontiguousarray(light.T, dtype=np.float32)
-        depth32 = depth_flat.astype(np.float32)
-        chunks = _chunks(act_counts, chunk_samples)
-    for a, b in chunks:
-        c = act_counts[a:b]
-        n = int(c.sum())
-        m = b - a
-        local = np.repeat(np.arange(m), c)
-        starts = (np.cumsum(c) - c).astype(np.uint32)
-        k = np.arange(1, n + 1, dtype=np.uint32) - np.repeat(starts, c)
-        u, v = r2_points_fixed(
-            np.repeat(sx_all[a:b], c), np.repeat(sy_all[a:b], c), k, dtype=np.float32
+        pix = active_pixels(geom, profile, counts, active, frame, seed)
+        sums, var_sums, fallback = _numpy_sums(
+            geom, pix, lighting, depth, profile, depth_slope, variance, chunk_samples
         )
-
-        # Pick channel c with probability γ_c/Σγ, then rescale u to reuse it.
-        e = edges[a:b]
-        ch = (u >= np.repeat(e[:, 1], c)).astype(np.intp) + (u >= np.repeat(e[:, 2], c))
-        e4 = local * 4 + ch
-        lo_sel = np.take(e, e4)
-        uu = (u - lo_sel) / (np.take(e, e4 + 1) - lo_sel)
-        np.clip(uu, 0.0, np.nextafter(np.float32(1.0), np.float32(0.0)), out=uu)
-        flat = local * 3 + ch
-
-        mat = np.repeat(mat_a[a:b], c)
-        r = profile.sample(uu, np.take(lo_t[a:b], flat), np.take(hi_t[a:b], flat), mat, ch)
-        r = r.astype(np.float32, copy=False)
-        theta = v
-        theta *= np.float32(TWO_PI)
-        qx = np.cos(theta)
-        qx *= r
-        qx *= np.repeat(inv_fw[a:b], c)
-        qx += np.repeat(x_a[a:b], c)
-        qy = np.sin(theta, out=theta)
-        qy *= r
-        qy *= np.repeat(inv_fh[a:b], c)
-        qy += np.repeat(y_a[a:b], c)
-        # Clip first: with a huge d (or a tiny footprint) the offset would not
-        # fit the integer cast; -1 and w/h stay outside, as before the clip.
-        np.clip(qx, -1, full_w, out=qx)
-        np.clip(qy, -1, full_h, out=qy)
-        sx, sy = (qx.copy(), qy.copy()) if surf is not None else (None, None)
-        qx = np.rint(qx, out=qx)
-        qy = np.rint(qy, out=qy)
-        if ox:
-            qx -= np.float32(ox)
-        if oy:
-            qy -= np.float32(oy)
-        centre_idx = np.repeat(idx_a[a:b], c)
-        inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
-        q = np.where(inside, qy.astype(np.intp) * w + qx.astype(np.intp), centre_idx)
-        ok = inside & (np.take(mat_flat, q) == mat)
-        zq = np.take(depth32, q)
-        zp = np.repeat(z_a[a:b], c)
-        ok &= np.abs(zq - zp) <= slope * r
-        if core_a is None:
-            fallback += n - int(np.count_nonzero(ok))
-        else:
-            fallback += int(np.count_nonzero(np.repeat(core_a[a:b], c) & ~ok))
-        # A rejected sample reads the centre, so its difference is exactly 0.
-        q = np.where(ok, q, centre_idx)
-        diff = np.take(light_cm, q, axis=1)
-        diff -= np.repeat(np.take(light_cm, idx_a[a:b], axis=1), c, axis=1)
-
-        if surf is not None:
-            # Surface distance: the sample's point on the depth-buffer surface
-            # (its continuous screen position at the depth of the pixel it lands
-            # on) against the centre's; the profile at that distance over the
-            # profile at r (R = pdf/(2πr)) times the area Jacobian.
-            zq = np.where(ok, zq, zp)
-            px = np.repeat(x_a[a:b], c)
-            py = np.repeat(y_a[a:b], c)
-            if surf.ortho:
-                dx = (sx - px) * np.float32(surf.unit[0])
-                dy = (sy - py) * np.float32(surf.unit[1])
-                plane = np.repeat(fwfh[a:b], c)
-            else:
-                cx, cy = (np.float32(v) for v in surf.centre)
-                dx = ((sx - cx) * zq - (px - cx) * zp) * np.float32(surf.unit[0])
-                dy = ((sy - cy) * zq - (py - cy) * zp) * np.float32(surf.unit[1])
-                plane = zp * zp * np.float32(surf.unit[0] * surf.unit[1])
-            dz = zq - zp
-            dist = np.sqrt(dx * dx + dy * dy + dz * dz)
-            np.maximum(dist, np.float32(1e-30), out=dist)
-            jac = np.take(surf.area, q) / plane
-            dens_r = profile.pdf_channels(r, mat)
-            dens = profile.pdf_channels(dist, mat)
-            if profile.pixel_weight_scale:
-                ws = np.repeat(ws_a[:, a:b], c, axis=1)
-                dens_r *= ws
-                dens *= ws
-            norm = dens_r[0] + dens_r[1] + dens_r[2]
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                scale = np.where(
-                    norm > 0, np.repeat(g_s32[a:b], c) * (r / dist) * jac / norm, np.float32(0)
-                )
-            dens *= scale
-            diff *= dens
-        elif chrom_a[a:b].any():
-            dens = profile.pdf_channels(r, mat)
-            if profile.pixel_weight_scale:
-                dens *= np.repeat(ws_a[:, a:b], c, axis=1)
-            norm = dens[0] + dens[1] + dens[2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                scale = np.where(norm > 0, np.repeat(g_s32[a:b], c) / norm, np.float32(0))
-            dens *= scale
-            diff *= dens
-        else:  # one profile for all channels: w_c = γ_c exactly
-            diff *= np.repeat(gam_cm[:, a:b], c, axis=1)
-        pix = active[a:b]
-        for ci in range(3):
-            distant[pix, ci] += np.bincount(local, weights=diff[ci], minlength=m) / c
-        if var_sum is not None:
-            y = diff[0] * np.float32(0.2126) + diff[1] * np.float32(0.7152)
-            y += diff[2] * np.float32(0.0722)
-            var_sum[pix, 0] += np.bincount(local, weights=y, minlength=m)
-            var_sum[pix, 1] += np.bincount(local, weights=y.astype(np.float64) ** 2, minlength=m)
+    distant[active] += sums / act_counts[:, None]
     spread = None
-    if var_sum is not None:
+    if variance:
+        var_sum = np.zeros((geom.size, 2))
+        var_sum[active] = var_sums
         m_all = counts.astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             s2 = (var_sum[:, 1] - var_sum[:, 0] ** 2 / m_all) / (m_all - 1.0)
             spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
-        spread[(m_all == 0) | (gsum == 0)] = 0.0
-    return DistantEstimate(distant, counted, fallback, spread)
+        spread[(m_all == 0) | (geom.gamma_sum == 0)] = 0.0
+    return DistantEstimate(distant, counted, int(fallback), spread)
+
+
+def _numpy_sums(
+    geom: Geometry,
+    pix: Pixels,
+    lighting: np.ndarray,
+    depth: np.ndarray,
+    profile: Profile,
+    depth_slope: float,
+    variance: bool,
+    chunk_samples: int,
+) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Per active pixel Σ_k w_c·(B_c(q_k) − B_c(p)), luminance sums and fall-backs (NumPy).
+
+    Samples are processed in batches of at most ``chunk_samples``, pixel by
+    pixel, so that each pixel's samples are contiguous and summed in order.
+
+    Returns
+    -------
+    sums : (P, 3) float64; var : (P, 2) float64 Σy and Σy² (None without variance);
+    fallback : int, samples that fell back (of the core pixels for a crop)
+    """
+    h, w = geom.shape
+    # A crop (core.tiling) places samples in image coordinates, with the image's
+    # bounds, and reads its own arrays; a sample that leaves the crop falls back.
+    full_h, full_w = geom.image_shape
+    oy, ox = geom.origin
+    burley = type(profile) is BurleyProfile
+    n_pix = pix.counts.size
+    sums = np.empty((n_pix, 3))
+    var = np.empty((n_pix, 2)) if variance else None
+    fallback = 0
+    # Channel-major lighting: one contiguous row per channel.
+    light_cm = np.ascontiguousarray(lighting.reshape(-1, 3).T, dtype=np.float32)
+    centre_light = light_cm[:, pix.idx]
+    depth32 = depth.reshape(-1).astype(np.float32)
+    slots = geom.slots
+    surf = geom.surface
+    slope = np.float32(depth_slope)
+    top = np.nextafter(np.float32(1.0), np.float32(0.0))
+    t_a, t_b = pix.t_a.reshape(-1), pix.t_b.reshape(-1)
+    if burley:
+        rcols, ncols = profile._rcols, profile._ncols
+        size = np.float32(rcols[0].shape[0] - 1)
+        trunc = np.float32(profile.truncate)
+        # Per (slot, channel), flat: index mat·3 + ch.
+        d_kc = profile._d32
+        inv_d_kc = np.ascontiguousarray(profile._inv_d.T).reshape(-1)
+    lo_flat, hi_flat = pix.lo.reshape(-1), pix.hi.reshape(-1)
+    if surf is not None:
+        unit_x, unit_y = (np.float32(v) for v in surf.unit)
+        cx, cy = (np.float32(v) for v in surf.centre)
+    for a, b in _chunks(pix.counts, chunk_samples):
+        c = pix.counts[a:b]
+        n = int(c.sum())
+        local = np.repeat(np.arange(a, b, dtype=np.intp), c)
+        starts = np.cumsum(c) - c
+        k = np.arange(1, n + 1, dtype=np.uint32)
+        k -= np.repeat(starts.astype(np.uint32), c)
+        uq, vq = r2_fixed(np.repeat(pix.hx[a:b], c), np.repeat(pix.hy[a:b], c), k)
+        u = uq.astype(np.float32)
+        u *= np.float32(2.0**-32)
+        np.minimum(u, top, out=u)
+
+        # Channel c with probability γ_c/Σγ; u's place inside the channel's interval,
+        # mapped affinely, is the sample's coordinate in the profile's u-space.
+        ch = (u >= np.repeat(pix.edges[a:b, 1], c)).astype(np.intp)
+        ch += u >= np.repeat(pix.edges[a:b, 2], c)
+        flat = local * 3
+        flat += ch
+        t = np.take(t_b, flat)
+        t *= u
+        t += np.take(t_a, flat)
+        mat = np.repeat(pix.mat[a:b], c)
+        norm = None
+        if burley:
+            # The radius from the table; in surface mode also the channel mixture's
+            # density there, from the slot's table at the same position.
+            np.clip(t, 0.0, 1.0, out=t)
+            s = np.sqrt(t, out=t)
+            s *= size
+            i = s.astype(np.int32)
+            f = np.subtract(s, i, dtype=np.float32)
+            r = f * np.take(rcols[1], i)
+            r += np.take(rcols[0], i)
+            np.minimum(r, trunc, out=r)
+            slot_ch = mat * 3
+            slot_ch += ch
+            r *= np.take(d_kc, slot_ch)
+            if surf is not None:
+                row = slot_ch.astype(np.intp) * rcols[0].shape[0]
+                row += i
+                norm = f * np.take(ncols[1], row)
+                norm += np.take(ncols[0], row)
+                # Rows that straddle another channel's truncation (a few per slot).
+                cut = s < np.take(ncols[2], row)
+                if cut.any():
+                    norm[cut] -= np.take(ncols[3], row[cut])
+                norm *= np.take(inv_d_kc, slot_ch)
+        else:
+            np.clip(t, 0.0, top, out=t)
+            r = profile.sample(t, np.take(lo_flat, flat), np.take(hi_flat, flat), mat, ch)
+            r = np.asarray(r, dtype=np.float32)
+        rp = r * np.repeat(pix.inv_fw[a:b], c)
+        dirs = np.take(DIRECTIONS, (vq >> np.uint32(32 - DIRECTION_BITS)).astype(np.intp), axis=0)
+        px = np.repeat(pix.x[a:b], c)
+        py = np.repeat(pix.y[a:b], c)
+        qx = rp * dirs[:, 0]
+        qx += px
+        qy = rp * dirs[:, 1]
+        if pix.aspect != 1:
+            qy *= pix.aspect
+        qy += py
+        # Clip first: with a huge d (or a tiny footprint) the offset would not
+        # fit the integer cast; -1 and w/h stay outside.
+        np.clip(qx, -1, full_w, out=qx)
+        np.clip(qy, -1, full_h, out=qy)
+        ix = np.rint(qx).astype(np.intp)
+        iy = np.rint(qy).astype(np.intp)
+        if ox:
+            ix -= ox
+        if oy:
+            iy -= oy
+        # Negative coordinates wrap to huge unsigned values: one test per axis.
+        inside = ix.view(np.uintp) < w
+        inside &= iy.view(np.uintp) < h
+        centre_idx = np.repeat(pix.idx[a:b], c)
+        iy *= w
+        iy += ix
+        q = np.where(inside, iy, centre_idx)
+        ok = inside & (np.take(slots, q) == mat)
+        zq = np.take(depth32, q)
+        zp = np.repeat(pix.z[a:b], c)
+        ok &= np.abs(zq - zp) <= slope * r
+        if pix.core is None:
+            fallback += n - int(np.count_nonzero(ok))
+        else:
+            fallback += int(np.count_nonzero(np.repeat(pix.core[a:b], c) & ~ok))
+        # A rejected sample reads the centre, so its difference is exactly 0.
+        q = np.where(ok, q, centre_idx)
+        diff = np.empty((3, n), np.float32)
+        for ci in range(3):
+            np.take(light_cm[ci], q, out=diff[ci])
+        diff -= np.repeat(centre_light[:, a:b], c, axis=1)
+
+        if surf is not None:
+            # Surface distance: the sample's point on the depth-buffer surface (its
+            # continuous screen position at the depth of the pixel it lands on)
+            # against the centre's; the profile at that distance over the profile
+            # at r (R = pdf/(2πr)) times the area Jacobian.
+            zq = np.where(ok, zq, zp)
+            if surf.ortho:
+                dx = (qx - px) * unit_x
+                dy = (qy - py) * unit_y
+                plane = np.repeat(pix.fwfh[a:b], c)
+            else:
+                dx = (qx - cx) * zq
+                dx -= (px - cx) * zp
+                dx *= unit_x
+                dy = (qy - cy) * zq
+                dy -= (py - cy) * zp
+                dy *= unit_y
+                plane = zp * zp
+                plane *= np.float32(surf.unit[0] * surf.unit[1])
+            dz = zq - zp
+            dist = dx * dx
+            dist += dy * dy
+            dist += dz * dz
+            np.sqrt(dist, out=dist)
+            np.maximum(dist, np.float32(1e-30), out=dist)
+            if norm is None:
+                dens_r = _pdf(profile, r, mat, pix, a, c)
+                norm = dens_r[0] + dens_r[1] + dens_r[2]
+            dens = _pdf(profile, dist, mat, pix, a, c)
+            # w_c = Σγ·pdf_c(dist)/Σ_c' pdf_c'(r) · (r/dist) · area_q/plane
+            scale = np.repeat(pix.g_s[a:b], c)
+            scale *= r
+            scale *= np.take(surf.area, q)
+            dist *= norm
+            dist *= plane
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                scale /= dist
+            scale = np.where(norm > 0, scale, np.float32(0.0))
+            dens *= scale
+            diff *= dens
+        elif pix.chrom[a:b].any():
+            dens = _pdf(profile, r, mat, pix, a, c)
+            norm = dens[0] + dens[1] + dens[2]
+            scale = np.repeat(pix.g_s[a:b], c)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scale /= norm
+            scale = np.where(norm > 0, scale, np.float32(0.0))
+            dens *= scale
+            diff *= dens
+        else:  # one profile for all channels: w_c = γ_c exactly
+            diff *= np.repeat(pix.gam[a:b].T, c, axis=1)
+        starts = starts.astype(np.intp)
+        sums[a:b] = np.add.reduceat(diff, starts, axis=1, dtype=np.float64).T
+        if var is not None:
+            y = diff[0] * np.float32(0.2126) + diff[1] * np.float32(0.7152)
+            y += diff[2] * np.float32(0.0722)
+            y64 = y.astype(np.float64)
+            var[a:b, 0] = np.add.reduceat(y64, starts)
+            y64 *= y64
+            var[a:b, 1] = np.add.reduceat(y64, starts)
+    return sums, var, fallback
+
+
+def _pdf(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, a: int, c) -> np.ndarray:
+    """(3, n) float32 density of every channel at r, times the per-pixel weight scale."""
+    if type(profile) is BurleyProfile:
+        return pdf_from_table(
+            r,
+            np.repeat(pix.pscale[:, a : a + c.size], c, axis=1),
+            np.repeat(pix.inv_d[:, a : a + c.size], c, axis=1),
+            profile._pcols,
+        )
+    dens = profile.pdf_channels(r, mat)
+    if profile.pixel_weight_scale:
+        dens *= np.repeat(pix.ws[:, a : a + c.size], c, axis=1)
+    return dens

@@ -1,19 +1,24 @@
 """The sampling step as one compiled loop per pixel (numba backend of core.mc.estimator).
 
-:func:`pixel_sums` does, for every active pixel and each of its samples, what
-the NumPy path of :func:`core.mc.estimator.estimate_distant` does with whole
-arrays: R2 point from the pixel's hashed offset, channel choice, Burley
-radius (exact or fast inverse), screen offset, follow-surface tests, gather,
+:func:`pixel_sums` does, for every active pixel, what
+:func:`core.mc.estimator.active_pixels` does with arrays (its hash, channel
+edges and tail map), and for each of its samples what the NumPy path of
+:func:`core.mc.estimator.estimate_distant` does with whole arrays: R2 point,
+channel, radius and mixture density from the profile's tables, direction
+from the direction table, screen position, follow-surface tests, gather,
 per-channel weight (planar, chromatic or surface distance with the area
 Jacobian) and the running sums. Nothing per sample is stored, so memory is
 O(pixels) and the cost is proportional to Σm.
 
 It mirrors the NumPy arithmetic operation by operation in float32 (sums in
-float64, in sample order), so both backends draw the same samples and agree
-to float32 rounding. Only the transcendental functions (log, exp, sin, cos)
-come from different libraries: a sample whose position lies within an ulp of
-a pixel boundary may round to the neighbouring pixel in one backend
-(tests/core/test_backend.py bounds how often).
+float64, in sample order). Neither side calls a library function per sample
+(the tables replace log, exp, sin and cos), so both backends draw the same
+samples and agree to float32 rounding; tests/core/test_backend.py checks it.
+
+Tables are read flat, with unsigned indices: numba then emits no
+negative-index wrap-around test per read. A pixel's lighting, depth, surface
+area and slot share one 32-byte texel, so a sample's reads touch one cache
+line.
 
 Pixels are independent and each writes its own output row, so the result does
 not depend on the thread count or schedule (tiles stay bit-identical to a
@@ -30,59 +35,83 @@ import types
 import numba
 import numpy as np
 
-from ..sampling.sequence import R2_STEP_U32
+from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, R2_STEP_U32
 
 #: Geometry modes of the kernel.
 PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
-#: Samples that go through each stage together (see pixel_sums).
+#: Samples that go through each stage together (see pixel_sums): one AVX-512 vector
+#: of float32, and enough independent work to hide the latency of the reads.
 BATCH = 16
 #: Pixels per parallel task (one set of batch buffers each).
 PIXELS_PER_TASK = 64
-
+_M32 = np.uint64(0xFFFFFFFF)
+# numba does integer arithmetic in 64 bits: the R2 step wraps modulo 2**32 by the mask.
 _A = np.uint64(R2_STEP_U32[0])
 _B = np.uint64(R2_STEP_U32[1])
-_MASK = np.uint64(0xFFFFFFFF)
+_DIR_SHIFT = np.uint64(32 - DIRECTION_BITS)
+_LCG_A = np.uint64(1664525)
+_LCG_C = np.uint64(1013904223)
+_S16 = np.uint64(16)
+_ONE, _TWO, _THREE, _FOUR = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4)
+_FIVE, _EIGHT = np.uint64(5), np.uint64(8)
 
 
 @numba.njit(cache=True, inline="always")
-def _burley_pdf(r, inv3d, inv4d, rmax, c, mat):
-    """Burley pdf of channel c at r (float32), as BurleyProfile.pdf_channels."""
-    a = np.exp(inv3d[c, mat] * (-r))
-    a = a * (a * a + np.float32(1.0))
-    a = a * inv4d[c, mat]
-    if r > rmax[c, mat]:
-        a = np.float32(0.0)
-    return a
+def _pcg3d_xy(x, y, z):
+    """The first two words of :func:`core.sampling.sequence.pcg3d` (uint32 arithmetic
+    done in uint64 and masked)."""
+    vx = (x * _LCG_A + _LCG_C) & _M32
+    vy = (y * _LCG_A + _LCG_C) & _M32
+    vz = (z * _LCG_A + _LCG_C) & _M32
+    vx = (vx + vy * vz) & _M32
+    vy = (vy + vz * vx) & _M32
+    vz = (vz + vx * vy) & _M32
+    vx ^= vx >> _S16
+    vy ^= vy >> _S16
+    vz ^= vz >> _S16
+    vx = (vx + vy * vz) & _M32
+    vy = (vy + vz * vx) & _M32
+    return vx, vy
+
+
+@numba.njit(cache=True, inline="always")
+def _pdf(x, k, inv_d, ptab, size):
+    """Burley pdf at x of one channel from the unit table (:func:`core.profiles.burley.pdf_from_table`)."""
+    s = x * k
+    if s > size:
+        s = size
+    i = np.uint64(s) * np.uint64(2)  # tables are read flat with unsigned indices: no
+    s = (s - np.float32(np.uint32(s))) * ptab[i + np.uint64(1)] + ptab[i]  # wrap-around test
+    return s * inv_d
 
 
 def _pixel_sums(
-    hx,
-    hy,
+    active,
     counts,
-    edges,
+    gx,
+    gy,
+    gamma,
+    gamma_sum,
     lo,
     hi,
-    mat_a,
-    x_a,
-    y_a,
-    inv_fw,
-    inv_fh,
-    idx_a,
-    z_a,
-    core_a,
-    gam,
-    g_s,
-    chrom,
-    fwfh,
+    gmat,
+    fw,
+    fh,
+    gdepth,
+    gindex,
+    chromatic,
+    gcore,
+    seed_z,
+    dtab,
     texel,
-    mat_flat,
-    area,
-    d32,
-    inv3d,
-    inv4d,
-    rmax,
+    rtab,
     trunc,
-    fast,
+    dirs,
+    pscale,
+    inv_d,
+    ptab,
+    ntab,
+    aspect,
     w,
     h,
     full_w,
@@ -98,30 +127,34 @@ def _pixel_sums(
     cy,
     want_var,
 ):
-    """Per-pixel sums of the weighted differences of P active pixels.
+    """Per-pixel sums of the weighted differences of the P active SSS pixels.
 
-    Arrays are per active pixel unless said otherwise, with the dtypes the
-    NumPy path builds in :func:`core.mc.estimator.estimate_distant`.
+    Does, per pixel, what :func:`core.mc.estimator.active_pixels` does with
+    arrays (hash, channel edges, the affine map u ↦ tail value, float32
+    copies), then per sample what :func:`core.mc.estimator._numpy_sums` does,
+    operation by operation in float32 (sums in float64, in sample order).
 
     Parameters
     ----------
-    hx, hy : (P,) uint32, hashed R2 offsets
-    counts : (P,) int64, samples m ≥ 1
-    edges : (P, 4) float32, cumulative channel probabilities
-    lo, hi : (P, 3) float32, Burley tail bounds of the distant region
-    mat_a : (P,) int, compact material slot; x_a, y_a : (P,) float32 image coords
-    inv_fw, inv_fh : (P,) float32, 1/footprint (pixels per scene unit)
-    idx_a : (P,) int64, flat index into the frame's arrays; z_a : (P,) float32 depth
-    core_a : (P,) bool, counts towards the fallback tally
-    gam : (P, 3) float32, γ_c; g_s : (P,) float32, Σγ; chrom : (P,) bool
-    fwfh : (P,) float32, footprint area (ortho plane element)
-    texel : (N, 4) float32, lighting B (3 channels) and depth per pixel, interleaved
-        so that one sample's reads share a cache line
-    mat_flat : (N,) int, slots; area : (N,) float32, surface area per pixel
-    d32 : (3K,) float32; inv3d, inv4d, rmax : (3, K) float32, Burley tables
-    trunc : float32, truncation in d; fast : bool, fast inverse
+    active : (P,) int64, the active pixels (indices into the Geometry's arrays)
+    counts : (G,) int64, samples per SSS pixel of the Geometry (m ≥ 1 where active)
+    gx, gy : (G,) int64 image coords; gamma, lo, hi : (G, 3) float64; gamma_sum : (G,)
+    gmat : (G,) int32 compact slot; fw, fh, gdepth : (G,) float64, scene units
+    gindex : (G,) int64, flat index into the frame's arrays; chromatic, gcore : (G,) bool
+    seed_z : uint64, ``frame ^ seed`` (the hash's third word)
+    dtab : (K, 3) float64, Burley d per slot (scene units)
+    texel : (8N,) float32, per pixel B (3 channels), depth, surface area and compact
+        slot (exact in float32), padded to 32 bytes: a sample's reads share one
+        cache line
+    rtab : (2(S + 1),) float32, radius table (flat); trunc : float32, truncation in d
+    dirs : (2·2**DIRECTION_BITS,) float32, direction table (flat)
+    pscale, inv_d : (3, K) float32, pdf table scale size/(truncate·d) and 1/d
+    ptab : (2(S + 1),) float32, unit pdf table (flat)
+    ntab : (12K·(S + 1),) float32, the channel mixture's density per slot and drawn
+        channel (:func:`core.profiles.burley.norm_table`, flat)
+    aspect : float32, footprint width / height
     w, h : int, frame (crop) size; full_w, full_h : float32, image size
-    ox, oy : float32, crop origin; slope : float32, depth slope
+    ox, oy : int, crop origin; slope : float32, depth slope
     mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera
     want_var : bool, accumulate luminance sums for the variance
 
@@ -131,47 +164,79 @@ def _pixel_sums(
     var : (P, 2) float64, Σ y and Σ y² of the luminance of those terms
     fallback : (P,) int64, samples that fell back (core pixels only)
     """
-    n = counts.shape[0]
+    n = active.shape[0]
     sums = np.zeros((n, 3))
     var = np.zeros((n, 2))
     fallback = np.zeros(n, np.int64)
-    inv32 = np.float32(1.0 / 4294967296.0)
+    inv32 = np.float32(2.0**-32)
     top = np.nextafter(np.float32(1.0), np.float32(0.0))
-    tiny = np.float32(np.finfo(np.float32).tiny)
-    two_pi = np.float32(2.0 * np.pi)
     one = np.float32(1.0)
     zero = np.float32(0.0)
+    size = np.float32(rtab.shape[0] // 2 - 1)
+    nrows = np.uint64(rtab.shape[0] // 2)
+    psize = np.float32(ptab.shape[0] // 2 - 1)
     n_chunks = (n + PIXELS_PER_TASK - 1) // PIXELS_PER_TASK
     for task in numba.prange(n_chunks):
         # Samples go through the stages in batches of BATCH: each stage's samples are
-        # independent, so their long latencies (libm calls, divisions, gathers) overlap
-        # instead of forming one dependent chain per sample. Per-sample arithmetic and the
+        # independent (straight-line code over table reads, no library calls), so the
+        # reads and long latencies of a batch overlap. Per-sample arithmetic and the
         # order of the sums are those of the plain loop.
-        b_ch = np.empty(BATCH, np.int64)
-        b_t = np.empty(BATCH, np.float32)
-        b_d = np.empty(BATCH, np.float32)
-        b_v = np.empty(BATCH, np.float32)
         b_r = np.empty(BATCH, np.float32)
+        b_qx = np.empty(BATCH, np.float32)
+        b_qy = np.empty(BATCH, np.float32)
         b_q = np.empty(BATCH, np.int64)
         b_zq = np.empty(BATCH, np.float32)
-        b_sx = np.empty(BATCH, np.float32)
-        b_sy = np.empty(BATCH, np.float32)
         b_ok = np.empty(BATCH, np.bool_)
-        b_w = np.empty((BATCH, 3), np.float32)
+        b_w = np.empty((3, BATCH), np.float32)
+        b_n = np.empty(BATCH, np.float32)
+        t_a = np.empty(3, np.float32)
+        idch = np.empty(3, np.float32)
+        t_b = np.empty(3, np.float32)
+        dch = np.empty(3, np.float32)
         for i in range(task * PIXELS_PER_TASK, min(n, (task + 1) * PIXELS_PER_TASK)):
-            m = counts[i]
-            mat = mat_a[i]
-            centre = idx_a[i]
-            zp = z_a[i]
-            px = x_a[i]
-            py = y_a[i]
-            b0 = texel[centre, 0]
-            b1 = texel[centre, 1]
-            b2 = texel[centre, 2]
-            e1 = edges[i, 1]
-            e2 = edges[i, 2]
-            hxi = np.uint64(hx[i])
-            hyi = np.uint64(hy[i])
+            g = active[i]
+            m = counts[g]
+            mat = gmat[g]
+            fmat = np.float32(mat)
+            centre = gindex[g]
+            hxi, hyi = _pcg3d_xy(np.uint64(gx[g]) & _M32, np.uint64(gy[g]) & _M32, seed_z)
+            # The pixel's channel edges and tail maps (as active_pixels).
+            g0 = gamma[g, 0]
+            g1 = gamma[g, 1]
+            g2 = gamma[g, 2]
+            gs = gamma_sum[g]
+            e1 = np.float32(g0 / gs) if (g1 > 0 or g2 > 0) else one
+            e2 = np.float32((g0 + g1) / gs) if g2 > 0 else one
+            for c in range(3):
+                ec = 0.0 if c == 0 else (np.float64(e1) if c == 1 else np.float64(e2))
+                en = np.float64(e1) if c == 0 else (np.float64(e2) if c == 1 else 1.0)
+                width = en - ec
+                sl = 1.0 / max(width, 1e-300) if width > 0 else 0.0
+                tb = (lo[g, c] - hi[g, c]) * sl
+                t_a[c] = np.float32(hi[g, c] - tb * ec)
+                t_b[c] = np.float32(tb)
+                dch[c] = np.float32(dtab[mat, c])
+                idch[c] = inv_d[c, mat]
+            zp = np.float32(gdepth[g])
+            px = np.float32(gx[g])
+            py = np.float32(gy[g])
+            rpx = np.float32(1.0 / fw[g])
+            g_s = np.float32(gs)
+            plane = zp * zp * unit_xy if mode == PERSPECTIVE else np.float32(fw[g] * fh[g])
+            slot3 = np.uint64(mat) * np.uint64(3)
+            # The slot's pdf table scales and 1/d, per channel (loop invariants).
+            ks0 = pscale[0, mat]
+            ks1 = pscale[1, mat]
+            ks2 = pscale[2, mat]
+            i0 = inv_d[0, mat]
+            i1 = inv_d[1, mat]
+            i2 = inv_d[2, mat]
+            chrom = chromatic[g]
+            core = gcore[g]
+            c8 = np.uint64(centre) * _EIGHT
+            b0 = texel[c8]
+            b1 = texel[c8 + _ONE]
+            b2 = texel[c8 + _TWO]
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -180,147 +245,112 @@ def _pixel_sums(
             nfb = 0
             for k0 in range(1, m + 1, BATCH):
                 nb = min(BATCH, m + 1 - k0)
-                # Stage 1: R2 point, channel, tail value.
+                # Stage 1: R2 point, channel, radius from the table, screen position.
                 for j in range(nb):
                     kk = np.uint64(k0 + j)
-                    u = np.float32((hxi + kk * _A) & _MASK) * inv32
-                    v = np.float32((hyi + kk * _B) & _MASK) * inv32
+                    u = np.float32((hxi + kk * _A) & _M32) * inv32
                     if u > top:
                         u = top
-                    if v > top:
-                        v = top
                     ch = 0
                     if u >= e1:
-                        ch += 1
+                        ch = 1
                     if u >= e2:
-                        ch += 1
-                    lo_sel = edges[i, ch]
-                    uu = (u - lo_sel) / (edges[i, ch + 1] - lo_sel)
-                    if uu < zero:
-                        uu = zero
-                    if uu > top:
-                        uu = top
-                    b_ch[j] = ch
-                    b_t[j] = hi[i, ch] - uu * (hi[i, ch] - lo[i, ch])
-                    b_d[j] = d32[mat * 3 + ch]
-                    b_v[j] = v
-                # Stage 2: Burley radius from the tail t (BurleyProfile.sample).
-                for j in range(nb):
-                    t = b_t[j]
-                    d = b_d[j]
-                    if fast:
-                        t64 = min(max(np.float64(t), 1e-300), 1.0)
-                        r64 = np.float64(d) * ((2.0 - 2.5715) * (1.0 - t64) - 2.0) * np.log(t64)
-                        r = np.float32(max(r64, 0.0))
-                    else:
-                        tu = min(max(t, tiny), one)
-                        g = tu * tu * np.float32(4.0) + one
-                        g = np.sqrt(g)
-                        g = g + np.float32(2.0) * tu
-                        g = g * (np.float32(4.0) * tu)
-                        g = g + one
-                        g13 = np.exp(np.log(g) * np.float32(1.0 / 3.0))
-                        inner = one / g13
-                        inner = inner + g13
-                        inner = inner + one
-                        inner = inner / (np.float32(4.0) * tu)
-                        r = np.log(inner) * (np.float32(3.0) * d)
-                        if r < zero:
-                            r = zero
-                    rcap = d * trunc
-                    if r > rcap:
-                        r = rcap
+                        ch = 2
+                    t = t_b[ch] * u + t_a[ch]
+                    t = min(max(t, zero), one)
+                    s = np.sqrt(t) * size
+                    ti = np.uint64(s)
+                    f = s - np.float32(np.uint32(s))
+                    rho = f * rtab[ti * _TWO + _ONE] + rtab[ti * _TWO]
+                    r = min(rho, trunc) * dch[ch]
+                    if mode != PLANAR:
+                        # The channel mixture's density at r, from the slot's table.
+                        row = ((slot3 + np.uint64(ch)) * nrows + ti) * _FOUR
+                        nv = f * ntab[row + _ONE] + ntab[row]
+                        if s < ntab[row + _TWO]:
+                            nv -= ntab[row + _THREE]
+                        b_n[j] = nv * idch[ch]
+                    di = ((hyi + kk * _B) & _M32) >> _DIR_SHIFT
+                    rp = r * rpx
+                    qx = rp * dirs[di * _TWO] + px
+                    qy = rp * dirs[di * _TWO + _ONE] * aspect + py
                     b_r[j] = r
-                # Stage 3: screen position and the follow-surface tests.
+                    b_qx[j] = min(max(qx, np.float32(-1.0)), full_w)
+                    b_qy[j] = min(max(qy, np.float32(-1.0)), full_h)
+                # Stage 2: the follow-surface tests.
                 for j in range(nb):
-                    r = b_r[j]
-                    theta = b_v[j] * two_pi
-                    qx = np.cos(theta) * r * inv_fw[i] + px
-                    qy = np.sin(theta) * r * inv_fh[i] + py
-                    if qx < np.float32(-1.0):
-                        qx = np.float32(-1.0)
-                    if qx > full_w:
-                        qx = full_w
-                    if qy < np.float32(-1.0):
-                        qy = np.float32(-1.0)
-                    if qy > full_h:
-                        qy = full_h
-                    b_sx[j] = qx
-                    b_sy[j] = qy
-                    qx = np.rint(qx) - ox
-                    qy = np.rint(qy) - oy
-                    ok = (qx >= 0) and (qx < w) and (qy >= 0) and (qy < h)
+                    ix = np.int64(np.rint(b_qx[j])) - ox
+                    iy = np.int64(np.rint(b_qy[j])) - oy
+                    ok = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
                     q = centre
                     zq = zp
                     if ok:
-                        q = np.int64(qy) * w + np.int64(qx)
-                        ok = mat_flat[q] == mat
-                        zq = texel[q, 3]
-                        ok = ok and (abs(zq - zp) <= slope * r)
+                        q = iy * w + ix
+                        q8 = np.uint64(q) * _EIGHT
+                        zq = texel[q8 + _THREE]
+                        ok = (texel[q8 + _FIVE] == fmat) and (abs(zq - zp) <= slope * b_r[j])
                     if not ok:
-                        if core_a[i]:
+                        q = centre
+                        zq = zp
+                        if core:
                             nfb += 1
                     b_ok[j] = ok
                     b_q[j] = q
                     b_zq[j] = zq
-                # Stage 4: per-channel weights of the accepted samples.
+                # Stage 3: per-channel weights of the accepted samples.
                 for j in range(nb):
                     if not b_ok[j]:
                         continue
                     r = b_r[j]
                     if mode != PLANAR:
-                        q = b_q[j]
                         zq = b_zq[j]
-                        sx = b_sx[j]
-                        sy = b_sy[j]
                         if mode == ORTHO:
-                            dx = (sx - px) * unit_x
-                            dy = (sy - py) * unit_y
-                            plane = fwfh[i]
+                            dx = (b_qx[j] - px) * unit_x
+                            dy = (b_qy[j] - py) * unit_y
                         else:
-                            dx = ((sx - cx) * zq - (px - cx) * zp) * unit_x
-                            dy = ((sy - cy) * zq - (py - cy) * zp) * unit_y
-                            plane = zp * zp * unit_xy
+                            dx = ((b_qx[j] - cx) * zq - (px - cx) * zp) * unit_x
+                            dy = ((b_qy[j] - cy) * zq - (py - cy) * zp) * unit_y
                         dz = zq - zp
                         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
                         if dist < np.float32(1e-30):
                             dist = np.float32(1e-30)
-                        jac = area[q] / plane
-                        norm = (
-                            _burley_pdf(r, inv3d, inv4d, rmax, 0, mat)
-                            + _burley_pdf(r, inv3d, inv4d, rmax, 1, mat)
-                            + _burley_pdf(r, inv3d, inv4d, rmax, 2, mat)
-                        )
+                        norm = b_n[j]
                         scale = zero
                         if norm > zero:
-                            scale = g_s[i] * (r / dist) * jac / norm
-                        b_w[j, 0] = _burley_pdf(dist, inv3d, inv4d, rmax, 0, mat) * scale
-                        b_w[j, 1] = _burley_pdf(dist, inv3d, inv4d, rmax, 1, mat) * scale
-                        b_w[j, 2] = _burley_pdf(dist, inv3d, inv4d, rmax, 2, mat) * scale
-                    elif chrom[i]:
-                        p0 = _burley_pdf(r, inv3d, inv4d, rmax, 0, mat)
-                        p1 = _burley_pdf(r, inv3d, inv4d, rmax, 1, mat)
-                        p2 = _burley_pdf(r, inv3d, inv4d, rmax, 2, mat)
+                            scale = (
+                                g_s
+                                * r
+                                * texel[np.uint64(b_q[j]) * _EIGHT + _FOUR]
+                                / (dist * norm * plane)
+                            )
+                        b_w[0, j] = _pdf(dist, ks0, i0, ptab, psize) * scale
+                        b_w[1, j] = _pdf(dist, ks1, i1, ptab, psize) * scale
+                        b_w[2, j] = _pdf(dist, ks2, i2, ptab, psize) * scale
+                    elif chrom:
+                        p0 = _pdf(r, ks0, i0, ptab, psize)
+                        p1 = _pdf(r, ks1, i1, ptab, psize)
+                        p2 = _pdf(r, ks2, i2, ptab, psize)
                         norm = p0 + p1 + p2
                         scale = zero
                         if norm > zero:
-                            scale = g_s[i] / norm
-                        b_w[j, 0] = p0 * scale
-                        b_w[j, 1] = p1 * scale
-                        b_w[j, 2] = p2 * scale
+                            scale = g_s / norm
+                        b_w[0, j] = p0 * scale
+                        b_w[1, j] = p1 * scale
+                        b_w[2, j] = p2 * scale
                     else:
-                        b_w[j, 0] = gam[i, 0]
-                        b_w[j, 1] = gam[i, 1]
-                        b_w[j, 2] = gam[i, 2]
-                # Stage 5: gather and sum, in sample order (a rejected sample reads the
+                        b_w[0, j] = np.float32(g0)
+                        b_w[1, j] = np.float32(g1)
+                        b_w[2, j] = np.float32(g2)
+                # Stage 4: gather and sum, in sample order (a rejected sample reads the
                 # centre: its difference is exactly 0, so it is skipped).
                 for j in range(nb):
                     if not b_ok[j]:
                         continue
                     q = b_q[j]
-                    d0 = (texel[q, 0] - b0) * b_w[j, 0]
-                    d1 = (texel[q, 1] - b1) * b_w[j, 1]
-                    d2 = (texel[q, 2] - b2) * b_w[j, 2]
+                    q8 = np.uint64(q) * _EIGHT
+                    d0 = (texel[q8] - b0) * b_w[0, j]
+                    d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
+                    d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
                     s0 += np.float64(d0)
                     s1 += np.float64(d1)
                     s2 += np.float64(d2)
@@ -359,6 +389,74 @@ def kernel(samples: int):
     return pixel_sums if samples >= PARALLEL_MIN_SAMPLES else pixel_sums_serial
 
 
+def run_kernel(geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance):
+    """Per-pixel sums of the ``active`` SSS pixels of ``geom`` with the compiled kernel.
+
+    Returns what :func:`core.mc.estimator._numpy_sums` returns: (P, 3) sums,
+    (P, 2) luminance sums (None without ``variance``) and the fall-back count.
+    """
+    f32 = np.float32
+    h, w = geom.shape
+    full_h, full_w = geom.image_shape
+    oy, ox = geom.origin
+    surf = geom.surface
+    if surf is None:
+        mode, unit, centre, area = PLANAR, (1.0, 1.0), (0.0, 0.0), np.zeros(1, f32)
+    else:
+        mode = ORTHO if surf.ortho else PERSPECTIVE
+        unit, centre, area = surf.unit, surf.centre, surf.area
+    texel = np.zeros((h * w, 8), f32)
+    texel[:, :3] = lighting.reshape(-1, 3)
+    texel[:, 3] = depth.reshape(-1)
+    if surf is not None:
+        texel[:, 4] = area
+    texel[:, 5] = geom.slots
+    first = active[0]
+    sums, var, fb = kernel(int(counts[active].sum()))(
+        active,
+        counts,
+        geom.x,
+        geom.y,
+        geom.gamma,
+        geom.gamma_sum,
+        geom.lo,
+        geom.hi,
+        geom.mat.astype(np.int32, copy=False),
+        geom.fw,
+        geom.fh,
+        geom.depth,
+        geom.index,
+        geom.chromatic,
+        np.ones(geom.size, np.bool_) if geom.core is None else geom.core,
+        np.uint64((np.int64(frame) ^ np.int64(seed)) & 0xFFFFFFFF),
+        profile.d,
+        texel.reshape(-1),
+        profile._rtab.reshape(-1),
+        f32(profile.truncate),
+        DIRECTIONS.reshape(-1),
+        profile._pscale,
+        profile._inv_d,
+        profile._ptab.reshape(-1),
+        profile._ntab.reshape(-1),
+        f32(geom.fw[first] / geom.fh[first]),
+        w,
+        h,
+        f32(full_w),
+        f32(full_h),
+        ox,
+        oy,
+        f32(depth_slope),
+        mode,
+        f32(unit[0]),
+        f32(unit[1]),
+        f32(unit[0] * unit[1]),
+        f32(centre[0]),
+        f32(centre[1]),
+        variance,
+    )
+    return sums, (var if variance else None), int(fb.sum())
+
+
 def warm_up() -> None:
     """Run the kernels once on one pixel (compiles them, or loads them from the disk cache)."""
     for fn in (pixel_sums, pixel_sums_serial):
@@ -367,41 +465,41 @@ def warm_up() -> None:
 
 def _warm(fn) -> None:
     f32 = np.float32
-    one = np.ones(1, f32)
+    one = np.ones(1)
+    g3 = np.full((1, 3), 0.5)
     fn(
-        np.zeros(1, np.uint32),
-        np.zeros(1, np.uint32),
+        np.zeros(1, np.int64),
         np.ones(1, np.int64),
-        np.array([[0, 1, 1, 1]], f32),
-        np.full((1, 3), 0.1, f32),
-        np.full((1, 3), 0.5, f32),
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        g3,
+        np.full(1, 1.5),
+        np.full((1, 3), 0.1),
+        g3,
         np.ones(1, np.int32),
-        np.zeros(1, f32),
-        np.zeros(1, f32),
+        one,
         one,
         one,
         np.zeros(1, np.int64),
-        one,
-        np.ones(1, np.bool_),
-        np.full((1, 3), 0.5, f32),
-        np.full(1, 1.5, f32),
         np.zeros(1, np.bool_),
-        one,
-        np.ones((1, 4), f32),
-        np.ones(1, np.int32),
-        one,
-        np.ones(6, f32),
-        np.ones((3, 2), f32),
-        np.ones((3, 2), f32),
-        np.ones((3, 2), f32),
+        np.ones(1, np.bool_),
+        np.uint64(0),
+        np.ones((2, 3)),
+        np.ones(8, f32),
+        np.ones(10, f32),
         f32(16.0),
-        False,
+        DIRECTIONS.reshape(-1),
+        np.ones((3, 2), f32),
+        np.ones((3, 2), f32),
+        np.ones(10, f32),
+        np.ones(120, f32),
+        f32(1.0),
         1,
         1,
         f32(1.0),
         f32(1.0),
-        f32(0.0),
-        f32(0.0),
+        0,
+        0,
         f32(2.0),
         PLANAR,
         f32(1.0),

@@ -18,6 +18,29 @@ _U32 = np.uint32
 _INV_2_32 = 1.0 / 4294967296.0
 #: R2 step in 0.32 fixed point: frac(k·a) = (k·A mod 2**32) / 2**32 exactly.
 R2_STEP_U32 = (np.uint32(round(2**32 / PHI2)), np.uint32(round(2**32 / PHI2**2)))
+#: Sample directions are the centres of 2**DIRECTION_BITS equal angular bins.
+DIRECTION_BITS = 12
+
+
+def direction_table(bits: int = DIRECTION_BITS) -> np.ndarray:
+    """(2**bits, 2) float32 ``(cos θ_i, sin θ_i)`` with ``θ_i = 2π(i + ½)/2**bits``.
+
+    The angle coordinate v of a sample (0.32 fixed point) selects bin
+    ``v >> (32 − bits)``, so each of the equally likely bins holds the
+    directions of its width and the sample takes the bin's centre: the
+    angular distribution stays uniform over a symmetric set, moving a sample
+    at radius ρ pixels by at most πρ/2**bits pixels (0.08 px at 100 px), and
+    the sampler reads a table instead of calling cos and sin.
+
+    >>> t = direction_table(2); [round(float(v), 4) for v in t[:, 0]]
+    [0.7071, -0.7071, -0.7071, 0.7071]
+    """
+    theta = 2.0 * np.pi * (np.arange(1 << bits) + 0.5) / (1 << bits)
+    return np.stack([np.cos(theta), np.sin(theta)], axis=1).astype(np.float32)
+
+
+#: The table of :func:`direction_table` the estimators use.
+DIRECTIONS = direction_table()
 
 
 def pcg3d(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -95,6 +118,22 @@ def r2_points_fixed(
     vf = v.astype(np.float32)
     vf *= np.float32(_INV_2_32)
     return np.minimum(uf, top, out=uf), np.minimum(vf, top, out=vf)
+
+
+def r2_fixed(hx: np.ndarray, hy: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shifted R2 points as 0.32 fixed-point uint32 (see :func:`r2_points_fixed`).
+
+    Returns ``(hx + k·A, hy + k·B) mod 2**32``: the radial coordinate is turned
+    into a float by the caller, the angular one selects a :data:`DIRECTIONS` bin
+    by its top bits.
+    """
+    k = np.asarray(k).astype(_U32, copy=False)
+    with np.errstate(over="ignore"):
+        u = k * R2_STEP_U32[0]
+        u += hx
+        v = k * R2_STEP_U32[1]
+        v += hy
+    return u, v
 
 
 def pixel_offsets(
