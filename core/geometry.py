@@ -56,12 +56,17 @@ class Surface:
     centre : (cx, cy), principal point in pixel coordinates
     area : (H·W,) float32, surface area each pixel covers (scene units²; the
         fronto-parallel footprint where the surface is unknown)
+    normal : (H·W, 3) float32, unit normal of that patch in camera space (x right,
+        y down, z along the view axis), turned towards the camera; the view
+        direction's opposite where the surface is unknown. The geometric normal
+        of the depth buffer, as Cycles' disk sampling uses the geometric normal.
     """
 
     ortho: bool
     unit: tuple[float, float]
     centre: tuple[float, float]
     area: np.ndarray
+    normal: np.ndarray | None = None
 
 
 def positions(camera, depth: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
@@ -87,6 +92,7 @@ def surface(frame: Frame) -> Surface:
     wu, hu = cam.unit_footprint()
     ortho = cam.type == "ORTHO"
     z = frame.depth.astype(np.float64)
+    h, w = z.shape
     p = positions(cam, frame.depth, frame.origin)
     flat = (wu * hu) * (np.ones_like(z) if ortho else z * z)
 
@@ -113,10 +119,36 @@ def surface(frame: Frame) -> Surface:
         return np.where(central[..., None], 0.5 * (fwd + bwd), one)
 
     with np.errstate(invalid="ignore", over="ignore"):
-        area = np.linalg.norm(np.cross(tangent(1), tangent(0)), axis=-1)
-        area = np.where(np.isfinite(area) & (area > 0), np.minimum(area, MAX_TILT * flat), flat)
+        cross = np.cross(tangent(1), tangent(0))
+        norm = np.linalg.norm(cross, axis=-1)
+        known = np.isfinite(norm) & (norm > 0)
+        area = np.where(known, np.minimum(norm, MAX_TILT * flat), flat)
+        normal = cross / np.where(known, norm, 1.0)[..., None]
     area = np.where(np.isfinite(z), area, 0.0)
-    return Surface(ortho, (wu, hu), cam.principal_point, area.reshape(-1).astype(np.float32))
+    # Towards the camera: against the view ray (perspective) or the view axis (ortho).
+    view = np.zeros_like(p)
+    view[..., 2] = 1.0
+    if not ortho:
+        view[..., 0] = (
+            np.arange(w, dtype=np.float64) + frame.origin[1] - cam.principal_point[0]
+        ) * wu
+        view[..., 1] = (
+            np.arange(h, dtype=np.float64)[:, None] + frame.origin[0] - cam.principal_point[1]
+        ) * hu
+    view /= np.linalg.norm(view, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        facing = np.sum(normal * view, axis=-1)
+    normal = np.where((facing > 0)[..., None], -normal, normal)
+    normal = np.where(known[..., None], normal, -view).reshape(-1, 3).astype(np.float32)
+    # z from x and y in float32, as the compiled kernel rebuilds it from its texel (which
+    # keeps x, y and z's sign), so both backends see the same normals.
+    xy = normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1]
+    normal[:, 2] = np.copysign(
+        np.sqrt(np.maximum(np.float32(1.0) - xy, np.float32(0.0))), normal[:, 2]
+    )
+    return Surface(
+        ortho, (wu, hu), cam.principal_point, area.reshape(-1).astype(np.float32), normal
+    )
 
 
 def slot_keys(materials) -> np.ndarray:

@@ -40,7 +40,7 @@ PAPER_DEFAULTS = {
 
 HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
-DISTANCES = ("surface", "planar")
+DISTANCES = ("surface", "cycles", "planar")
 TEMPORAL_MODES = ("multiplicative", "subtractive")
 #: Implementations of the Monte Carlo sampling step (core.mc.backend).
 BACKENDS = ("auto", "numpy", "numba")
@@ -386,12 +386,14 @@ class SSSParams(_Params):
         advanced=True,
     )
     distance: str = param(
-        "surface",
-        label="Sample Distance",
-        help="Distance at which a sample's profile weight is taken: on the depth-buffer "
-        "surface, with the area Jacobian of the screen to surface mapping (surface, default: "
-        "closer to Cycles at silhouettes and on tilted surfaces), or the sampled planar radius "
-        "(planar, the paper's)",
+        "cycles",
+        label="Sample Kernel",
+        help="How a sample is weighted: with the kernel Cycles' Christensen-Burley disk "
+        "sampling integrates, which gains energy on curved and folded surfaces as Cycles does "
+        "(cycles, default: closest to Cycles renders); with the Burley profile at the distance "
+        "between the two points on the depth-buffer surface, energy-conserving (surface); both "
+        "with the area Jacobian of the screen to surface mapping; or with the profile at the "
+        "sampled planar radius (planar, the paper's)",
         choices=DISTANCES,
         advanced=True,
     )

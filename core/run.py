@@ -29,11 +29,14 @@ method's whole post-process of the frame (ms, this machine). Two quality figures
     pixels whose passes did not change (luminance of Combined within 0.5 %),
     relative to their mean luminance — what animators see as shimmer.
     Empty on the first frame and after a gap (a resumed run keeps them).
-``psnr_gt_db``, ``psnr_gt_full_db``, ``ratio_r/g/b``, ``rim_ratio``
+``psnr_gt_db``, ``psnr_gt_full_db``, ``ratio_r/g/b``, ``rim_ratio``, ``rim_outer_ratio``, ``rim_contact_ratio``
     *against ground truth* (Cycles' own subsurface, when a ground-truth frame
     is handed to :meth:`SequenceRun.step`): RGB PSNR over SSS pixels and over
     the whole image, the per-channel mean ratio ours/ground truth on SSS
-    pixels, and the luminance ratio on silhouette SSS pixels; empty without.
+    pixels, and the luminance ratio on silhouette SSS pixels — all of them,
+    the outer silhouettes (background or a farther surface across the edge)
+    and the contact edges (another material at the same depth), see
+    :func:`core.eval.metrics.edge_kinds`; empty without.
 
 Existing results
 ----------------
@@ -70,7 +73,7 @@ from pathlib import Path
 import numpy as np
 
 from .eval.color import luminance
-from .eval.metrics import channel_ratio, psnr, psnr_gt, silhouette
+from .eval.metrics import channel_ratio, edge_kinds, psnr, psnr_gt
 from .frame import Frame
 from .io import checkpoint
 from .io.atomic import make_folder, remove_stale_temporaries, write_text
@@ -94,6 +97,8 @@ METRICS_FIELDS = (
     "ratio_g",
     "ratio_b",
     "rim_ratio",
+    "rim_outer_ratio",
+    "rim_contact_ratio",
     "light_change",
     "flicker",
 )
@@ -610,7 +615,7 @@ class SequenceRun:
             }
             if ground_truth is not None:
                 if rims is None:
-                    rims = silhouette(result.mask, frame.material, frame.depth)
+                    rims = edge_kinds(result.mask, frame.material, frame.depth)
                 row.update(ground_truth_columns(result, ground_truth, rims))
             if light_mean is None:
                 light_mean = float(light_y[result.mask].mean()) if result.mask.any() else 0.0
@@ -723,21 +728,33 @@ class FrameStream:
         return results
 
 
-def ground_truth_columns(result: FrameResult, ground_truth: np.ndarray, rims: np.ndarray) -> dict:
-    """The ground-truth columns of a metric row (see the module doc)."""
+def ground_truth_columns(
+    result: FrameResult, ground_truth: np.ndarray, rims: dict[str, np.ndarray]
+) -> dict:
+    """The ground-truth columns of a metric row (see the module doc).
+
+    ``rims`` holds the silhouette pixels by kind (:func:`core.eval.metrics.edge_kinds`).
+    """
     ratio = channel_ratio(result.composite, ground_truth, result.mask)
-    rim = float("nan")
-    if rims.any():
-        gt_rim = float(luminance(np.asarray(ground_truth, np.float64)[rims]).mean())
-        ours_rim = float(luminance(np.asarray(result.composite, np.float64)[rims]).mean())
-        rim = ours_rim / gt_rim if gt_rim > 0 else float("nan")
+    gt_y = luminance(np.asarray(ground_truth, np.float64))
+    ours_y = luminance(np.asarray(result.composite, np.float64))
+
+    def rim(where: np.ndarray) -> float:
+        if not where.any():
+            return float("nan")
+        gt_rim = float(gt_y[where].mean())
+        return float(ours_y[where].mean()) / gt_rim if gt_rim > 0 else float("nan")
+
+    every = rims["outer"] | rims["occluded"] | rims["contact"]
     return {
         "psnr_gt_db": _fmt(psnr_gt(result.composite, ground_truth, result.mask), 3),
         "psnr_gt_full_db": _fmt(psnr_gt(result.composite, ground_truth), 3),
         "ratio_r": _fmt(float(ratio[0])),
         "ratio_g": _fmt(float(ratio[1])),
         "ratio_b": _fmt(float(ratio[2])),
-        "rim_ratio": _fmt(rim),
+        "rim_ratio": _fmt(rim(every)),
+        "rim_outer_ratio": _fmt(rim(rims["outer"])),
+        "rim_contact_ratio": _fmt(rim(rims["contact"])),
     }
 
 

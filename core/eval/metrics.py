@@ -126,6 +126,49 @@ def silhouette(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> np.
     return mask & edge
 
 
+#: Kinds of :func:`edge_kinds`, in order of precedence.
+EDGE_KINDS = ("outer", "occluded", "contact")
+
+
+def edge_kinds(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> dict[str, np.ndarray]:
+    """The :func:`silhouette` pixels split by what lies across the edge.
+
+    ``outer``: the background or a surface more than 10 % farther — the SSS
+    surface ends there (its own silhouette, where its hidden back side begins);
+    ``occluded``: a surface more than 10 % nearer covers it; ``contact``: another
+    material at about the same depth (objects that touch, such as a block resting
+    on a table top). A pixel takes the first kind that applies, in this order;
+    the three masks partition :func:`silhouette`.
+
+    Returns
+    -------
+    dict kind -> (H, W) bool
+    """
+    mask = np.asarray(mask, dtype=bool)
+    mat = np.asarray(material)
+    z = np.asarray(depth, dtype=np.float64)
+    h, w = mask.shape
+    farther = np.zeros((h, w), dtype=bool)
+    nearer = np.zeros((h, w), dtype=bool)
+    other = np.zeros((h, w), dtype=bool)
+    pad_m = np.pad(mat, 1, mode="edge")
+    pad_z = np.pad(z, 1, mode="edge")
+    with np.errstate(invalid="ignore"):
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx == dy == 0:
+                    continue
+                nm = pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+                nz = pad_z[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+                farther |= ~np.isfinite(nz) | (nz - z > 0.1 * z)
+                nearer |= z - nz > 0.1 * z
+                other |= nm != mat
+    outer = mask & farther
+    occluded = mask & nearer & ~outer
+    contact = mask & other & ~outer & ~occluded
+    return {"outer": outer, "occluded": occluded, "contact": contact}
+
+
 def median3(values: np.ndarray) -> np.ndarray:
     """Third-order median filter over a 1D series (edges keep their window of 2).
 

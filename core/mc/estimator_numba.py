@@ -30,6 +30,7 @@ This module imports numba at import time; import it through
 
 from __future__ import annotations
 
+import math
 import types
 
 import numba
@@ -53,7 +54,7 @@ _LCG_A = np.uint64(1664525)
 _LCG_C = np.uint64(1013904223)
 _S16 = np.uint64(16)
 _ONE, _TWO, _THREE, _FOUR = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4)
-_FIVE, _EIGHT = np.uint64(5), np.uint64(8)
+_FIVE, _SIX, _SEVEN, _EIGHT = np.uint64(5), np.uint64(6), np.uint64(7), np.uint64(8)
 
 
 @numba.njit(cache=True, inline="always")
@@ -112,6 +113,7 @@ def _pixel_sums(
     ptab,
     ntab,
     aspect,
+    disk,
     w,
     h,
     full_w,
@@ -125,6 +127,10 @@ def _pixel_sums(
     unit_xy,
     cx,
     cy,
+    ux64,
+    uy64,
+    cx64,
+    cy64,
     want_var,
 ):
     """Per-pixel sums of the weighted differences of the P active SSS pixels.
@@ -143,9 +149,9 @@ def _pixel_sums(
     gindex : (G,) int64, flat index into the frame's arrays; chromatic, gcore : (G,) bool
     seed_z : uint64, ``frame ^ seed`` (the hash's third word)
     dtab : (K, 3) float64, Burley d per slot (scene units)
-    texel : (8N,) float32, per pixel B (3 channels), depth, surface area and compact
-        slot (exact in float32), padded to 32 bytes: a sample's reads share one
-        cache line
+    texel : (8N,) float32, per pixel B (3 channels), depth, surface area carrying the
+        sign of the normal's z, compact slot (exact in float32) and the normal's x
+        and y (z = ±√(1 − x² − y²)): 32 bytes, so a sample's reads share one cache line
     rtab : (2(S + 1),) float32, radius table (flat); trunc : float32, truncation in d
     dirs : (2·2**DIRECTION_BITS,) float32, direction table (flat)
     pscale, inv_d : (3, K) float32, pdf table scale size/(truncate·d) and 1/d
@@ -153,9 +159,11 @@ def _pixel_sums(
     ntab : (12K·(S + 1),) float32, the channel mixture's density per slot and drawn
         channel (:func:`core.profiles.burley.norm_table`, flat)
     aspect : float32, footprint width / height
+    disk : bool, weigh with the kernel of Cycles' disk estimator (texel normals)
     w, h : int, frame (crop) size; full_w, full_h : float32, image size
     ox, oy : int, crop origin; slope : float32, depth slope
-    mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera
+    mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera;
+        ux64, uy64, cx64, cy64 : the same in float64 (the tangent planes)
     want_var : bool, accumulate luminance sums for the variance
 
     Returns
@@ -189,6 +197,9 @@ def _pixel_sums(
         b_ok = np.empty(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
         b_n = np.empty(BATCH, np.float32)
+        b_g = np.empty(BATCH, np.float32)
+        b_fx = np.empty(BATCH, np.float32)
+        b_fy = np.empty(BATCH, np.float32)
         t_a = np.empty(3, np.float32)
         idch = np.empty(3, np.float32)
         t_b = np.empty(3, np.float32)
@@ -223,6 +234,54 @@ def _pixel_sums(
             rpx = np.float32(1.0 / fw[g])
             g_s = np.float32(gs)
             plane = zp * zp * unit_xy if mode == PERSPECTIVE else np.float32(fw[g] * fh[g])
+            # The centre's normal, disk axes and tangent plane (as disk_frame and
+            # tangent_planes of core.mc.estimator).
+            use_plane = mode != PLANAR
+            pa = zero
+            pb = zero
+            pc = zero
+            nx = ny = nz = tx = ty = tz = bx = by = bz = zero
+            rho_min = zero
+            if use_plane:
+                c8 = np.uint64(centre) * _EIGHT
+                nx = texel[c8 + _SIX]
+                ny = texel[c8 + _SEVEN]
+                nz = np.float32(
+                    math.copysign(np.sqrt(max(one - (nx * nx + ny * ny), zero)), texel[c8 + _FOUR])
+                )
+                alike = (nx == ny) and (nx == nz)
+                tx = nz - ny
+                ty = nx + nz if alike else nx - nz
+                tz = -ny - nx if alike else ny - nx
+                tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+                tx = tx / tl
+                ty = ty / tl
+                tz = tz / tl
+                bx = ny * tz - nz * ty
+                by = nz * tx - nx * tz
+                bz = nx * ty - ny * tx
+                rho_min = np.float32(0.5 * fw[g])
+                n64x = np.float64(nx)
+                n64y = np.float64(ny)
+                n64z = np.float64(nz)
+                z64 = gdepth[g]
+                x64 = np.float64(gx[g])
+                y64 = np.float64(gy[g])
+                if mode == ORTHO:
+                    if abs(n64z) > 1e-6:
+                        a64 = -n64x * ux64 / n64z
+                        b64 = -n64y * uy64 / n64z
+                        pa = np.float32(a64)
+                        pb = np.float32(b64)
+                        pc = np.float32(z64 - a64 * x64 - b64 * y64)
+                else:
+                    qx64 = (x64 - cx64) * ux64 * z64
+                    qy64 = (y64 - cy64) * uy64 * z64
+                    dot = n64x * qx64 + n64y * qy64 + n64z * z64
+                    if abs(dot) > 1e-6 * z64:
+                        pa = np.float32(n64x * ux64 / dot)
+                        pb = np.float32(n64y * uy64 / dot)
+                        pc = np.float32((n64z - n64x * ux64 * cx64 - n64y * uy64 * cy64) / dot)
             slot3 = np.uint64(mat) * np.uint64(3)
             # The slot's pdf table scales and 1/d, per channel (loop invariants).
             ks0 = pscale[0, mat]
@@ -279,8 +338,10 @@ def _pixel_sums(
                     b_qy[j] = min(max(qy, np.float32(-1.0)), full_h)
                 # Stage 2: the follow-surface tests.
                 for j in range(nb):
-                    ix = np.int64(np.rint(b_qx[j])) - ox
-                    iy = np.int64(np.rint(b_qy[j])) - oy
+                    fx = np.rint(b_qx[j])
+                    fy = np.rint(b_qy[j])
+                    ix = np.int64(fx) - ox
+                    iy = np.int64(fy) - oy
                     ok = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
                     q = centre
                     zq = zp
@@ -288,7 +349,16 @@ def _pixel_sums(
                         q = iy * w + ix
                         q8 = np.uint64(q) * _EIGHT
                         zq = texel[q8 + _THREE]
-                        ok = (texel[q8 + _FIVE] == fmat) and (abs(zq - zp) <= slope * b_r[j])
+                        tol = slope * b_r[j]
+                        near = abs(zq - zp) <= tol
+                        if use_plane and not near:
+                            # Or within the tolerance of the centre's tangent plane.
+                            wpl = pa * fx + pb * fy + pc
+                            if mode == ORTHO:
+                                near = abs(zq - wpl) <= tol
+                            else:
+                                near = (wpl > zero) and (abs(zq * wpl - one) <= tol * wpl)
+                        ok = (texel[q8 + _FIVE] == fmat) and near
                     if not ok:
                         q = centre
                         zq = zp
@@ -297,6 +367,8 @@ def _pixel_sums(
                     b_ok[j] = ok
                     b_q[j] = q
                     b_zq[j] = zq
+                    b_fx[j] = fx
+                    b_fy[j] = fy
                 # Stage 3: per-channel weights of the accepted samples.
                 for j in range(nb):
                     if not b_ok[j]:
@@ -315,17 +387,48 @@ def _pixel_sums(
                         if dist < np.float32(1e-30):
                             dist = np.float32(1e-30)
                         norm = b_n[j]
+                        q8 = np.uint64(b_q[j]) * _EIGHT
+                        w0 = _pdf(dist, ks0, i0, ptab, psize)
+                        w1 = _pdf(dist, ks1, i1, ptab, psize)
+                        w2 = _pdf(dist, ks2, i2, ptab, psize)
+                        area_q = texel[q8 + _FOUR]
+                        b_g[j] = one
+                        if disk:
+                            # Cycles' disk kernel: the distance over Σ_a m_a/ρ_a.
+                            mx = texel[q8 + _SIX]
+                            my = texel[q8 + _SEVEN]
+                            mz = np.float32(
+                                math.copysign(np.sqrt(max(one - (mx * mx + my * my), zero)), area_q)
+                            )
+                            # From the landing pixel's own point: on a plane, G = 1.
+                            if mode == ORTHO:
+                                ex = (b_fx[j] - px) * unit_x
+                                ey = (b_fy[j] - py) * unit_y
+                            else:
+                                ex = ((b_fx[j] - cx) * zq - (px - cx) * zp) * unit_x
+                                ey = ((b_fy[j] - cy) * zq - (py - cy) * zp) * unit_y
+                            aN = ex * nx + ey * ny + dz * nz
+                            aT = ex * tx + ey * ty + dz * tz
+                            aB = ex * bx + ey * by + dz * bz
+                            cN = abs(mx * nx + my * ny + mz * nz) * np.float32(0.5)
+                            cT = abs(mx * tx + my * ty + mz * tz) * np.float32(0.25)
+                            cB = abs(mx * bx + my * by + mz * bz) * np.float32(0.25)
+                            cN = cN * cN
+                            cT = cT * cT
+                            cB = cB * cB
+                            total = cN + cT + cB
+                            inv = zero + cN / max(np.sqrt(aT * aT + aB * aB), rho_min)
+                            inv = inv + cT / max(np.sqrt(aB * aB + aN * aN), rho_min)
+                            inv = inv + cB / max(np.sqrt(aN * aN + aT * aT), rho_min)
+                            b_g[j] = one
+                            if total > zero:
+                                b_g[j] = np.sqrt(ex * ex + ey * ey + dz * dz) * inv / total
                         scale = zero
                         if norm > zero:
-                            scale = (
-                                g_s
-                                * r
-                                * texel[np.uint64(b_q[j]) * _EIGHT + _FOUR]
-                                / (dist * norm * plane)
-                            )
-                        b_w[0, j] = _pdf(dist, ks0, i0, ptab, psize) * scale
-                        b_w[1, j] = _pdf(dist, ks1, i1, ptab, psize) * scale
-                        b_w[2, j] = _pdf(dist, ks2, i2, ptab, psize) * scale
+                            scale = g_s * r * abs(area_q) / (dist * norm * plane)
+                        b_w[0, j] = w0 * scale
+                        b_w[1, j] = w1 * scale
+                        b_w[2, j] = w2 * scale
                     elif chrom:
                         p0 = _pdf(r, ks0, i0, ptab, psize)
                         p1 = _pdf(r, ks1, i1, ptab, psize)
@@ -348,9 +451,15 @@ def _pixel_sums(
                         continue
                     q = b_q[j]
                     q8 = np.uint64(q) * _EIGHT
-                    d0 = (texel[q8] - b0) * b_w[0, j]
-                    d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
-                    d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
+                    if disk:
+                        gq = b_g[j]
+                        d0 = (texel[q8] * gq - b0) * b_w[0, j]
+                        d1 = (texel[q8 + _ONE] * gq - b1) * b_w[1, j]
+                        d2 = (texel[q8 + _TWO] * gq - b2) * b_w[2, j]
+                    else:
+                        d0 = (texel[q8] - b0) * b_w[0, j]
+                        d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
+                        d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
                     s0 += np.float64(d0)
                     s1 += np.float64(d1)
                     s2 += np.float64(d2)
@@ -389,7 +498,9 @@ def kernel(samples: int):
     return pixel_sums if samples >= PARALLEL_MIN_SAMPLES else pixel_sums_serial
 
 
-def run_kernel(geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance):
+def run_kernel(
+    geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance, disk=False
+):
     """Per-pixel sums of the ``active`` SSS pixels of ``geom`` with the compiled kernel.
 
     Returns what :func:`core.mc.estimator._numpy_sums` returns: (P, 3) sums,
@@ -409,7 +520,8 @@ def run_kernel(geom, profile, counts, active, lighting, depth, frame, seed, dept
     texel[:, :3] = lighting.reshape(-1, 3)
     texel[:, 3] = depth.reshape(-1)
     if surf is not None:
-        texel[:, 4] = area
+        texel[:, 4] = np.copysign(area, surf.normal[:, 2])
+        texel[:, 6:8] = surf.normal[:, :2]
     texel[:, 5] = geom.slots
     first = active[0]
     sums, var, fb = kernel(int(counts[active].sum()))(
@@ -439,6 +551,7 @@ def run_kernel(geom, profile, counts, active, lighting, depth, frame, seed, dept
         profile._ptab.reshape(-1),
         profile._ntab.reshape(-1),
         f32(geom.fw[first] / geom.fh[first]),
+        bool(disk),
         w,
         h,
         f32(full_w),
@@ -452,6 +565,10 @@ def run_kernel(geom, profile, counts, active, lighting, depth, frame, seed, dept
         f32(unit[0] * unit[1]),
         f32(centre[0]),
         f32(centre[1]),
+        float(unit[0]),
+        float(unit[1]),
+        float(centre[0]),
+        float(centre[1]),
         variance,
     )
     return sums, (var if variance else None), int(fb.sum())
@@ -494,6 +611,7 @@ def _warm(fn) -> None:
         np.ones(10, f32),
         np.ones(120, f32),
         f32(1.0),
+        False,
         1,
         1,
         f32(1.0),
@@ -507,5 +625,9 @@ def _warm(fn) -> None:
         f32(1.0),
         f32(0.0),
         f32(0.0),
+        1.0,
+        1.0,
+        0.0,
+        0.0,
         True,
     )

@@ -130,7 +130,7 @@ class MonteCarloProcessor:
         geom = prepare(
             frame,
             profile,
-            surface_distance=p.distance == "surface",
+            surface_distance=p.distance != "planar",
             core_only=True,
             margin=1 if self.method.temporal else 0,
         )
@@ -152,6 +152,7 @@ class MonteCarloProcessor:
             chunk_samples=p.chunk_samples,
             variance=self.method.temporal == "guided",
             backend=p.backend,
+            disk=p.distance == "cycles",
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 

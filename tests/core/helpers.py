@@ -11,7 +11,7 @@ from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import frame_profile
 
 
-def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False):
+def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk=False):
     """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
 
     Parameters
@@ -21,6 +21,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False):
     profile : Profile over the frame's compact slots (default: the frame's own)
     seed, slope : hash seed and follow-surface depth slope
     surface : weigh samples by the surface distance (SSSParams.distance)
+    disk : with ``surface``, weigh them with Cycles' disk kernel (distance "cycles")
 
     Returns
     -------
@@ -40,6 +41,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False):
         frame=frame.number,
         seed=seed,
         depth_slope=slope,
+        disk=disk,
     )
     b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     return geom, est, (1 - geom.gamma) * b + est.distant

@@ -68,3 +68,31 @@ def test_silhouette_finds_edges_not_the_border():
     assert not silhouette(full, full.astype(int), z).any()
     z[:, 3:] = 3.0
     assert silhouette(full, full.astype(int), z)[:, 2:4].all()
+
+
+def test_edge_kinds_partition_the_silhouette():
+    """A block (material 1) on a table (material 2) before the background: the block's
+    top is an outer silhouette, its foot a contact edge, the table behind its sides is
+    occluded by it; the kinds partition silhouette()."""
+    from cvsss.core.eval.metrics import EDGE_KINDS, edge_kinds
+
+    mat = np.full((10, 12), 2, np.int32)
+    mat[:3] = 0  # background above the table
+    depth = np.full((10, 12), 4.0)
+    depth[:3] = np.inf
+    mat[2:7, 4:8] = 1  # the block stands on the table, in front of it
+    depth[2:7, 4:8] = 3.0
+    depth[7:, :] = 3.0  # the table's front edge, at the block's depth
+    mask = mat > 0
+    kinds = edge_kinds(mask, mat, depth)
+    assert tuple(kinds) == EDGE_KINDS
+    union = np.zeros_like(mask)
+    for a in EDGE_KINDS:
+        for b in EDGE_KINDS:
+            if a != b:
+                assert not (kinds[a] & kinds[b]).any()
+        union |= kinds[a]
+    np.testing.assert_array_equal(union, silhouette(mask, mat, depth))
+    assert kinds["outer"][2, 5] and kinds["outer"][3, 4]  # block top, block side (table behind)
+    assert kinds["occluded"][4, 3]  # the table next to the block, covered by it
+    assert kinds["contact"][7, 5] and kinds["contact"][6, 5]  # the block's foot on the table

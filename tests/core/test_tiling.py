@@ -90,6 +90,7 @@ def same_state(a: dict, b: dict) -> bool:
 
 CASES = [(name, FAST, MethodOptions()) for name in METHODS] + [
     ("as", dataclasses.replace(FAST, distance="planar"), MethodOptions()),
+    ("as_ccv", dataclasses.replace(FAST, distance="cycles"), MethodOptions()),
     ("as_ocv", dataclasses.replace(FAST, history_precision="float16"), MethodOptions()),
     (
         "separable",
