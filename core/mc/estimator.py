@@ -627,16 +627,18 @@ def tangent_planes(surf, normal, x, y, depth) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         if surf.ortho:
             ok = np.abs(n[:, 2]) > 1e-6
-            out[:, 0] = -n[:, 0] * wu / n[:, 2]
-            out[:, 1] = -n[:, 1] * hu / n[:, 2]
+            inv = -1.0 / n[:, 2]
+            out[:, 0] = n[:, 0] * wu * inv
+            out[:, 1] = n[:, 1] * hu * inv
             out[:, 2] = z - out[:, 0] * x - out[:, 1] * y
         else:
             px, py = (x - cx) * wu * z, (y - cy) * hu * z
             dot = n[:, 0] * px + n[:, 1] * py + n[:, 2] * z
             ok = np.abs(dot) > 1e-6 * z
-            out[:, 0] = n[:, 0] * wu / dot
-            out[:, 1] = n[:, 1] * hu / dot
-            out[:, 2] = (n[:, 2] - n[:, 0] * wu * cx - n[:, 1] * hu * cy) / dot
+            inv = 1.0 / dot
+            out[:, 0] = n[:, 0] * wu * inv
+            out[:, 1] = n[:, 1] * hu * inv
+            out[:, 2] = (n[:, 2] - n[:, 0] * wu * cx - n[:, 1] * hu * cy) * inv
     out[~ok] = 0.0
     return out.astype(np.float32)
 
@@ -654,8 +656,8 @@ def disk_frame(normal: np.ndarray) -> np.ndarray:
     tx = nz - ny
     ty = np.where(alike, nx + nz, nx - nz)
     tz = np.where(alike, -ny - nx, ny - nx)
-    length = np.sqrt(tx * tx + ty * ty + tz * tz)
-    tx, ty, tz = tx / length, ty / length, tz / length
+    inv = np.float32(1.0) / np.sqrt(tx * tx + ty * ty + tz * tz)
+    tx, ty, tz = tx * inv, ty * inv, tz * inv
     out = np.empty((n.shape[0], 9), np.float32)
     out[:, 0], out[:, 1], out[:, 2] = nx, ny, nz
     out[:, 3], out[:, 4], out[:, 5] = tx, ty, tz
@@ -685,15 +687,19 @@ def _disk_gain(dx, dy, dz, q, normal, pix: Pixels, a: int, c) -> np.ndarray:
         w = cos * np.float32(pick)
         weight.append(w * w)
     total = weight[0] + weight[1] + weight[2]
-    inv = np.zeros_like(dx)
-    for axis in range(3):
-        o1, o2 = along[(axis + 1) % 3], along[(axis + 2) % 3]
-        rho = np.sqrt(o1 * o1 + o2 * o2)
-        np.maximum(rho, lo, out=rho)
-        inv += weight[axis] / rho
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(total > 0, length * inv / total, np.float32(1.0))
+    # G = Σ_a w_a·(|Δ|/ρ_a)/total from q_a = max(ρ_a², ρ_min²)/|Δ|² with two divisions
+    # (the compiled kernel's operations, in its order).
+    sq = [a * a for a in along]
+    l2 = sq[0] + sq[1] + sq[2]
+    lo2 = lo * lo
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        il2 = np.float32(1.0) / l2
+        q = [np.maximum(sq[(j + 1) % 3] + sq[(j + 2) % 3], lo2) * il2 for j in range(3)]
+        big = np.float32(1.0) / (q[0] * q[1] * q[2] * (total * total))
+        g = weight[0] * np.sqrt(q[1] * q[2] * big)
+        g += weight[1] * np.sqrt(q[2] * q[0] * big)
+        g += weight[2] * np.sqrt(q[0] * q[1] * big)
+    return np.where((total > 0) & (l2 > 0), g, np.float32(1.0))
 
 
 def _pdf(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, a: int, c) -> np.ndarray:

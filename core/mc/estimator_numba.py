@@ -57,7 +57,7 @@ _ONE, _TWO, _THREE, _FOUR = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(
 _FIVE, _SIX, _SEVEN, _EIGHT = np.uint64(5), np.uint64(6), np.uint64(7), np.uint64(8)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _pcg3d_xy(x, y, z):
     """The first two words of :func:`core.sampling.sequence.pcg3d` (uint32 arithmetic
     done in uint64 and masked)."""
@@ -75,7 +75,7 @@ def _pcg3d_xy(x, y, z):
     return vx, vy
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _pdf(x, k, inv_d, ptab, size):
     """Burley pdf at x of one channel from the unit table (:func:`core.profiles.burley.pdf_from_table`)."""
     s = x * k
@@ -253,10 +253,10 @@ def _pixel_sums(
                 tx = nz - ny
                 ty = nx + nz if alike else nx - nz
                 tz = -ny - nx if alike else ny - nx
-                tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-                tx = tx / tl
-                ty = ty / tl
-                tz = tz / tl
+                tl = one / np.sqrt(tx * tx + ty * ty + tz * tz)
+                tx = tx * tl
+                ty = ty * tl
+                tz = tz * tl
                 bx = ny * tz - nz * ty
                 by = nz * tx - nx * tz
                 bz = nx * ty - ny * tx
@@ -269,8 +269,9 @@ def _pixel_sums(
                 y64 = np.float64(gy[g])
                 if mode == ORTHO:
                     if abs(n64z) > 1e-6:
-                        a64 = -n64x * ux64 / n64z
-                        b64 = -n64y * uy64 / n64z
+                        inv = -1.0 / n64z
+                        a64 = n64x * ux64 * inv
+                        b64 = n64y * uy64 * inv
                         pa = np.float32(a64)
                         pb = np.float32(b64)
                         pc = np.float32(z64 - a64 * x64 - b64 * y64)
@@ -279,9 +280,10 @@ def _pixel_sums(
                     qy64 = (y64 - cy64) * uy64 * z64
                     dot = n64x * qx64 + n64y * qy64 + n64z * z64
                     if abs(dot) > 1e-6 * z64:
-                        pa = np.float32(n64x * ux64 / dot)
-                        pb = np.float32(n64y * uy64 / dot)
-                        pc = np.float32((n64z - n64x * ux64 * cx64 - n64y * uy64 * cy64) / dot)
+                        inv = 1.0 / dot
+                        pa = np.float32(n64x * ux64 * inv)
+                        pb = np.float32(n64y * uy64 * inv)
+                        pc = np.float32((n64z - n64x * ux64 * cx64 - n64y * uy64 * cy64) * inv)
             slot3 = np.uint64(mat) * np.uint64(3)
             # The slot's pdf table scales and 1/d, per channel (loop invariants).
             ks0 = pscale[0, mat]
@@ -351,14 +353,15 @@ def _pixel_sums(
                         zq = texel[q8 + _THREE]
                         tol = slope * b_r[j]
                         near = abs(zq - zp) <= tol
-                        if use_plane and not near:
-                            # Or within the tolerance of the centre's tangent plane.
-                            wpl = pa * fx + pb * fy + pc
-                            if mode == ORTHO:
-                                near = abs(zq - wpl) <= tol
-                            else:
-                                near = (wpl > zero) and (abs(zq * wpl - one) <= tol * wpl)
-                        ok = (texel[q8 + _FIVE] == fmat) and near
+                        # Or within the tolerance of the centre's tangent plane (evaluated
+                        # without a branch: which test passes is hard to predict).
+                        wpl = pa * fx + pb * fy + pc
+                        if mode == ORTHO:
+                            on_plane = abs(zq - wpl) <= tol
+                        else:
+                            on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
+                        near = near | (use_plane & on_plane)
+                        ok = (texel[q8 + _FIVE] == fmat) & near
                     if not ok:
                         q = centre
                         zq = zp
@@ -394,7 +397,7 @@ def _pixel_sums(
                         area_q = texel[q8 + _FOUR]
                         b_g[j] = one
                         if disk:
-                            # Cycles' disk kernel: the distance over Σ_a m_a/ρ_a.
+                            # Cycles' disk kernel: G = |Δ|·Σ_a m_a/ρ_a.
                             mx = texel[q8 + _SIX]
                             my = texel[q8 + _SEVEN]
                             mz = np.float32(
@@ -417,12 +420,22 @@ def _pixel_sums(
                             cT = cT * cT
                             cB = cB * cB
                             total = cN + cT + cB
-                            inv = zero + cN / max(np.sqrt(aT * aT + aB * aB), rho_min)
-                            inv = inv + cT / max(np.sqrt(aB * aB + aN * aN), rho_min)
-                            inv = inv + cB / max(np.sqrt(aN * aN + aT * aT), rho_min)
+                            # G = Σ_a c_a·(|Δ|/ρ_a)/total with the squares of ρ_a/|Δ|
+                            # (clamped at ρ_min) and two divisions (the divider, not the
+                            # arithmetic, bounds this stage).
+                            l2 = aN * aN + aT * aT + aB * aB
+                            lo2 = rho_min * rho_min
+                            il2 = one / l2
+                            qN = max(aT * aT + aB * aB, lo2) * il2
+                            qT = max(aB * aB + aN * aN, lo2) * il2
+                            qB = max(aN * aN + aT * aT, lo2) * il2
+                            big = one / (qN * qT * qB * (total * total))
+                            gv = cN * np.sqrt(qT * qB * big)
+                            gv = gv + cT * np.sqrt(qB * qN * big)
+                            gv = gv + cB * np.sqrt(qN * qT * big)
                             b_g[j] = one
-                            if total > zero:
-                                b_g[j] = np.sqrt(ex * ex + ey * ey + dz * dz) * inv / total
+                            if total > zero and l2 > zero:
+                                b_g[j] = gv
                         scale = zero
                         if norm > zero:
                             scale = g_s * r * abs(area_q) / (dist * norm * plane)
@@ -479,7 +492,9 @@ def _pixel_sums(
 
 
 #: Parallel over pixels; for large frames.
-pixel_sums = numba.njit(parallel=True, cache=True, nogil=True)(_pixel_sums)
+# error_model="numpy": a float division by zero gives inf/nan as in NumPy instead of
+# raising, and numba emits no zero test before every division.
+pixel_sums = numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")(_pixel_sums)
 # The same code compiled without threads, for small work (a tile, a tiny frame): waking
 # the thread pool costs more than it saves there, and far more on an oversubscribed
 # machine (measured 4x slower per 32x32 frame under load). Same bits as the parallel one:
@@ -488,9 +503,32 @@ pixel_sums = numba.njit(parallel=True, cache=True, nogil=True)(_pixel_sums)
 _serial = types.FunctionType(_pixel_sums.__code__, _pixel_sums.__globals__, "pixel_sums_serial")
 _serial.__qualname__ = "pixel_sums_serial"
 _serial.__doc__ = _pixel_sums.__doc__
-pixel_sums_serial = numba.njit(cache=True, nogil=True)(_serial)
+pixel_sums_serial = numba.njit(cache=True, nogil=True, error_model="numpy")(_serial)
 #: Below this many samples the serial kernel runs.
 PARALLEL_MIN_SAMPLES = 1 << 16
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _texels(light, depth, area, normal, slots, surface):
+    """(8N,) float32 texels of the kernel (see pixel_sums), built in parallel."""
+    n = depth.shape[0]
+    out = np.empty(8 * n, np.float32)
+    for i in numba.prange(n):
+        o = 8 * i
+        out[o] = light[i, 0]
+        out[o + 1] = light[i, 1]
+        out[o + 2] = light[i, 2]
+        out[o + 3] = depth[i]
+        out[o + 5] = np.float32(slots[i])
+        if surface:
+            out[o + 4] = math.copysign(area[i], normal[i, 2])
+            out[o + 6] = normal[i, 0]
+            out[o + 7] = normal[i, 1]
+        else:
+            out[o + 4] = np.float32(0.0)
+            out[o + 6] = np.float32(0.0)
+            out[o + 7] = np.float32(0.0)
+    return out
 
 
 def kernel(samples: int):
@@ -516,13 +554,15 @@ def run_kernel(
     else:
         mode = ORTHO if surf.ortho else PERSPECTIVE
         unit, centre, area = surf.unit, surf.centre, surf.area
-    texel = np.zeros((h * w, 8), f32)
-    texel[:, :3] = lighting.reshape(-1, 3)
-    texel[:, 3] = depth.reshape(-1)
-    if surf is not None:
-        texel[:, 4] = np.copysign(area, surf.normal[:, 2])
-        texel[:, 6:8] = surf.normal[:, :2]
-    texel[:, 5] = geom.slots
+    normal = surf.normal if surf is not None else np.zeros((1, 3), f32)
+    texel = _texels(
+        np.ascontiguousarray(lighting.reshape(-1, 3), dtype=f32),
+        np.ascontiguousarray(depth.reshape(-1), dtype=f32),
+        np.ascontiguousarray(area, dtype=f32),
+        normal,
+        geom.slots.astype(np.int32, copy=False),
+        surf is not None,
+    )
     first = active[0]
     sums, var, fb = kernel(int(counts[active].sum()))(
         active,
@@ -542,7 +582,7 @@ def run_kernel(
         np.ones(geom.size, np.bool_) if geom.core is None else geom.core,
         np.uint64((np.int64(frame) ^ np.int64(seed)) & 0xFFFFFFFF),
         profile.d,
-        texel.reshape(-1),
+        texel,
         profile._rtab.reshape(-1),
         f32(profile.truncate),
         DIRECTIONS.reshape(-1),
