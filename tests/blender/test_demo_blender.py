@@ -116,6 +116,12 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     assert with_gt == [1, 3]
     assert "Against Cycles ground truth" in (out / "report.md").read_text()
     assert "regular: per frame" in (out / "report.md").read_text()
+    # The quality knob against the ground truth: as_ccv at each swept σ0² and the default.
+    truth = json.loads((out / "truth.json").read_text())["regular"]
+    sigmas = [r["sigma0_sq"] for r in truth["quality"]]
+    assert sigmas == sorted(sigmas, reverse=True) and 1e-4 in sigmas and len(sigmas) == 4
+    assert all(r["spp"] > 0 and r["psnr_gt_warm_db"] > 0 for r in truth["quality"])
+    assert "the quality knob against Cycles" in (out / "report.md").read_text()
 
     # Same settings: the pass frames are reused, the methods recomputed.
     mtimes = {p: p.stat().st_mtime_ns for p in (scene_dir / "passes").glob("*.exr")}
