@@ -128,7 +128,16 @@ def _clean(name: str, array: np.ndarray, shape: tuple, channels: int | None) -> 
 
 
 #: The Frame fields that hold one value per pixel (cropped, shifted, tiled alike).
-PIXEL_PASSES = ("lighting", "albedo", "combined", "depth", "material", "motion", "sss_weight")
+PIXEL_PASSES = (
+    "lighting",
+    "albedo",
+    "combined",
+    "depth",
+    "material",
+    "motion",
+    "sss_weight",
+    "indirect",
+)
 
 
 @dataclass
@@ -174,6 +183,10 @@ class Frame:
     crop : Crop or None
         The passes are a crop of the image (a tile with its halo; see
         core.tiling); None: the whole image, matching the camera.
+    indirect : (H, W, 3) float32 or None
+        The Diffuse Indirect part of ``lighting`` (linear; non-finite and
+        negative values -> 0). The rest is direct light, which the hidden-light
+        prior scales (SSSParams.hidden_light). None: all of B is direct.
     """
 
     number: int
@@ -190,6 +203,7 @@ class Frame:
     lighting_passes: tuple[str, ...] = ()
     sss_weight: np.ndarray | None = None
     crop: Crop | None = None
+    indirect: np.ndarray | None = None
 
     def map_pixels(self, fn, **changes) -> Frame:
         """A copy with ``fn`` applied to every per-pixel pass (:data:`PIXEL_PASSES`).
@@ -245,6 +259,13 @@ class Frame:
             mv[np.any(bad, axis=-1)] = MAX_MOTION
             mv = np.clip(mv, -MAX_MOTION, MAX_MOTION)
             self.motion = mv.astype(np.float32)
+        if self.indirect is not None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                ind = _clean("indirect", self.indirect, shape, 3).astype(np.float32, copy=True)
+            bad = ~np.isfinite(ind) | (ind < 0)
+            ind[bad] = 0.0
+            repaired += int(np.count_nonzero(bad))
+            self.indirect = ind
         if self.sss_weight is not None:
             sw = np.asarray(_clean("sss_weight", self.sss_weight, shape, None), dtype=np.float32)
             # Out-of-range weights are clipped (a texture may overshoot); NaN means

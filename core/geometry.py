@@ -212,6 +212,8 @@ class Geometry:
     chromatic : (P,) bool, the slot's channels have different profiles
     weight : (P,) float64, Subsurface Weight w in [0, 1] (the material's, or the
         pixel's where the frame carries a per-pixel weight)
+    direct : (P, 3) float32 or None, the direct part of B (lighting minus the
+        frame's indirect pass, ≥ 0; all of B without one)
     surface : Surface or None, for surface-distance weights (None: planar radius)
     origin : (y, x), image coordinates of the frame's pixel (0, 0) (a crop's origin)
     image : (H, W) of the whole image, or None (the frame is the whole image)
@@ -235,6 +237,7 @@ class Geometry:
     hi: np.ndarray
     chromatic: np.ndarray
     weight: np.ndarray | None = None
+    direct: np.ndarray | None = None
     surface: Surface | None = None
     origin: tuple[int, int] = (0, 0)
     image: tuple[int, int] | None = None
@@ -363,6 +366,9 @@ def prepare(
     if frame.sss_weight is not None:
         per_pixel = frame.sss_weight.reshape(-1)[index].astype(np.float64)
         weight = np.where(np.isnan(per_pixel), weight, per_pixel)
+    direct = frame.lighting.reshape(-1, 3)[index]
+    if frame.indirect is not None:
+        direct = np.maximum(direct - frame.indirect.reshape(-1, 3)[index], np.float32(0.0))
     return Geometry(
         shape=(h, w),
         index=index,
@@ -380,6 +386,7 @@ def prepare(
         hi=region.hi,
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
         weight=weight,
+        direct=direct.astype(np.float32, copy=False),
         surface=surface(frame) if surface_distance and index.size else None,
         origin=frame.origin,
         image=None if frame.crop is None else frame.image_shape,

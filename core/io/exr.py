@@ -395,7 +395,8 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         inf), ``material`` = Material Index, ``motion`` from Vector when
         present (:func:`motion_from_vector`), else None; ``sss_weight`` from the
         value AOV ``cvsss_weight`` on the pixels of materials whose sidecar
-        entry says ``"weight_linked": true`` (NaN elsewhere), else None. The
+        entry says ``"weight_linked": true`` (NaN elsewhere), else None;
+        ``indirect`` = Diffuse Indirect when present, else None. The
         frame also gets an attribute ``lighting_passes``: the tuple of passes
         summed into B. float16 channels are read as float32.
 
@@ -468,6 +469,7 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
             motion=motion,
             source=name,
             sss_weight=sss_weight,
+            indirect=arrays.get("Diffuse Indirect"),
         )
     except ValueError as exc:
         raise PassError(f"{name}: {exc}") from None
@@ -622,7 +624,8 @@ def write_passes(
 
     One part per pass under view layer ``ViewLayer``: Combined (RGB, A = 1),
     Depth (Z; background written as 1e10), Material Index (X, as float),
-    Diffuse Direct (= ``frame.lighting``), Diffuse Indirect (zeros),
+    Diffuse Direct and Indirect (``frame.lighting`` split by ``frame.indirect``;
+    all direct when it is None),
     Diffuse Color (= ``frame.albedo``) and, when ``frame.motion`` is set,
     Vector (:func:`vector_from_motion`). :func:`read_frame` gives the frame
     back. The sidecar (``path.with_suffix(".json")``) is written first so a
@@ -650,7 +653,6 @@ def write_passes(
     if not isinstance(frame, Frame):
         raise TypeError(f"frame must be a Frame, got {type(frame).__name__}")
     height, width = frame.shape
-    zeros = np.zeros((height, width), np.float32)
     depth = np.where(np.isfinite(frame.depth), frame.depth, BACKGROUND_DEPTH_WRITTEN)
     passes: dict[str, dict[str, np.ndarray]] = {
         "Combined": {
@@ -663,8 +665,13 @@ def write_passes(
         vector = vector_from_motion(frame.motion)
         passes["Vector"] = {c: vector[..., i] for i, c in enumerate("XYZW")}
     passes["Material Index"] = {"X": frame.material.astype(np.float32)}
-    passes["Diffuse Direct"] = {c: frame.lighting[..., i] for i, c in enumerate("RGB")}
-    passes["Diffuse Indirect"] = {c: zeros for c in "RGB"}
+    if frame.indirect is None:
+        direct, indirect = frame.lighting, np.zeros_like(frame.lighting)
+    else:
+        indirect = np.minimum(frame.indirect, frame.lighting)
+        direct = frame.lighting - indirect
+    passes["Diffuse Direct"] = {c: direct[..., i] for i, c in enumerate("RGB")}
+    passes["Diffuse Indirect"] = {c: indirect[..., i] for i, c in enumerate("RGB")}
     passes["Diffuse Color"] = {c: frame.albedo[..., i] for i, c in enumerate("RGB")}
 
     parts = []

@@ -155,7 +155,6 @@ class Pixels:
         affine map of the R2 coordinate u: a sample of channel c is at
         ``t = t_a[c] + t_b[c]·u`` (Burley: the tail value, in [lo_c, hi_c]; other
         profiles: the position in [0, 1) between their bounds)
-    d : (P, 3) float32, Burley shape d_c (scene units); zeros for other profiles
     lo, hi : (P, 3) float32, the profile's sampling bounds (other profiles sample
         between them)
     x, y : (P,) float32, image coordinates; inv_fw : (P,) float32, 1/footprint width
@@ -170,6 +169,7 @@ class Pixels:
         disk kernel; rho_min : (P,) float32, half the pixel's footprint (scene units)
     plane : (P, 3) float32 or None, the centre's tangent plane as an affine function
         of the landing pixel's image coordinates (:func:`tangent_planes`)
+    direct : (P, 3) float32 or None, the direct part of B (``Geometry.direct``)
     aspect : float32, footprint width / height (one per camera): the vertical
         offset in pixels is the horizontal one times this
     """
@@ -180,7 +180,6 @@ class Pixels:
     edges: np.ndarray
     t_a: np.ndarray
     t_b: np.ndarray
-    d: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     x: np.ndarray
@@ -201,6 +200,7 @@ class Pixels:
     frame: np.ndarray | None = None
     rho_min: np.ndarray | None = None
     plane: np.ndarray | None = None
+    direct: np.ndarray | None = None
 
 
 def active_pixels(
@@ -242,13 +242,11 @@ def active_pixels(
     if type(profile) is BurleyProfile:
         t_b = (lo - hi) * slope
         t_a = hi - t_b * e[:, :3]
-        d = profile.d[mat]
         pscale = np.take(profile._pscale, mat, axis=1)
         inv_d = np.take(profile._inv_d, mat, axis=1)
     else:
         t_b = slope
         t_a = -e[:, :3] * slope
-        d = np.zeros_like(lo)
         pscale = inv_d = np.zeros((3, active.size), np.float32)
     fw, fh = sel(geom.fw), sel(geom.fh)
     f32 = np.float32
@@ -266,7 +264,6 @@ def active_pixels(
         edges=edges,
         t_a=t_a.astype(f32),
         t_b=t_b.astype(f32),
-        d=d.astype(f32),
         lo=lo.astype(f32),
         hi=hi.astype(f32),
         x=sel(geom.x).astype(f32),
@@ -286,6 +283,7 @@ def active_pixels(
         frame=frame,
         rho_min=rho_min,
         plane=plane,
+        direct=None if geom.direct is None else sel(geom.direct),
         aspect=f32(fw[0] / fh[0]) if active.size else f32(1.0),
     )
 
@@ -304,6 +302,7 @@ def estimate_distant(
     variance: bool = False,
     backend: str = "numpy",
     disk: bool = False,
+    hidden_light: float = 1.0,
 ) -> DistantEstimate:
     """Estimate Î for every SSS pixel with the given per-pixel sample counts.
 
@@ -323,6 +322,9 @@ def estimate_distant(
         numba runs the Burley profile, other profiles run on NumPy
     disk : bool, weigh with the kernel of Cycles' disk estimator instead of the
         profile at the surface distance (with ``geom.surface``; module doc)
+    hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
+        a sample counts with when it lands on the background or another material
+        nearer than an occluder (the hidden surface; module doc); 1: the centre's light
 
     Returns
     -------
@@ -347,12 +349,32 @@ def estimate_distant(
         from .estimator_numba import run_kernel
 
         sums, var_sums, fallback = run_kernel(
-            geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance, disk
+            geom,
+            profile,
+            counts,
+            active,
+            lighting,
+            depth,
+            frame,
+            seed,
+            depth_slope,
+            variance,
+            disk,
+            hidden_light,
         )
     else:
         pix = active_pixels(geom, profile, counts, active, frame, seed)
         sums, var_sums, fallback = _numpy_sums(
-            geom, pix, lighting, depth, profile, depth_slope, variance, chunk_samples, disk
+            geom,
+            pix,
+            lighting,
+            depth,
+            profile,
+            depth_slope,
+            variance,
+            chunk_samples,
+            disk,
+            hidden_light,
         )
     distant[active] += sums / act_counts[:, None]
     spread = None
@@ -377,6 +399,7 @@ def _numpy_sums(
     variance: bool,
     chunk_samples: int,
     disk: bool = False,
+    hidden_light: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray | None, int]:
     """Per active pixel Σ_k w_c·(B_c(q_k) − B_c(p)), luminance sums and fall-backs (NumPy).
 
@@ -418,6 +441,9 @@ def _numpy_sums(
     if surf is not None:
         unit_x, unit_y = (np.float32(v) for v in surf.unit)
         cx, cy = (np.float32(v) for v in surf.centre)
+    fill_value = None
+    if hidden_light < 1.0 and pix.direct is not None:
+        fill_value = np.float32(-(1.0 - hidden_light)) * pix.direct.T
     for a, b in _chunks(pix.counts, chunk_samples):
         c = pix.counts[a:b]
         n = int(c.sum())
@@ -515,6 +541,15 @@ def _numpy_sums(
                 e -= np.float32(1.0)
                 near |= (w_pl > 0) & (np.abs(e) <= tol * w_pl)
         ok &= near
+        # Hidden surface: a rejected sample on the image that landed on the background or
+        # another material (not in front of the centre, an occluder) counts with the
+        # centre's light less (1 − β) of its direct part, at its planar weight.
+        fill = None
+        if fill_value is not None:
+            fill = inside & ~ok
+            fill &= ~(zp - zq > np.float32(0.1) * zp)
+            if not fill.any():
+                fill = None
         if pix.core is None:
             fallback += n - int(np.count_nonzero(ok))
         else:
@@ -556,10 +591,10 @@ def _numpy_sums(
                 norm = dens_r[0] + dens_r[1] + dens_r[2]
             dens = _pdf(profile, dist, mat, pix, a, c)
             if disk:
-                # Cycles' kernel is the surface kernel times G = dist/dist_eff: the
-                # sample's value B(q) counts G times against the centre's B(p).
-                # G from the landing pixel's own point (its centre), so that on a plane
-                # the offset lies in the plane and G = 1.
+                # Cycles' kernel is the surface kernel times G = |Δ|·Σ_a m_a/ρ_a: the
+                # sample's value B(q) counts G times against the centre's B(p). Δ runs
+                # to the landing pixel's own point (its centre), so that on a plane it
+                # lies in the plane and G = 1.
                 if surf.ortho:
                     ex = (fx - px) * unit_x
                     ey = (fy - py) * unit_y
@@ -584,6 +619,12 @@ def _numpy_sums(
             scale = np.where(norm > 0, scale, np.float32(0.0))
             dens *= scale
             diff *= dens
+            if fill is not None:
+                planar = _pdf(profile, r, mat, pix, a, c)[:, fill]
+                g_s = np.repeat(pix.g_s[a:b], c)[fill]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    planar *= np.where(norm[fill] > 0, g_s / norm[fill], np.float32(0.0))
+                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * planar
         elif pix.chrom[a:b].any():
             diff -= centre_rep
             dens = _pdf(profile, r, mat, pix, a, c)
@@ -594,9 +635,14 @@ def _numpy_sums(
             scale = np.where(norm > 0, scale, np.float32(0.0))
             dens *= scale
             diff *= dens
+            if fill is not None:
+                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * dens[:, fill]
         else:  # one profile for all channels: w_c = γ_c exactly
             diff -= centre_rep
-            diff *= np.repeat(pix.gam[a:b].T, c, axis=1)
+            gam = np.repeat(pix.gam[a:b].T, c, axis=1)
+            diff *= gam
+            if fill is not None:
+                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * gam[:, fill]
         starts = starts.astype(np.intp)
         sums[a:b] = np.add.reduceat(diff, starts, axis=1, dtype=np.float64).T
         if var is not None:
@@ -614,8 +660,8 @@ def tangent_planes(surf, normal, x, y, depth) -> np.ndarray:
 
     Perspective: ``1/z = A·i + B·j + C`` on the plane through the pixel's point with
     its normal (``A = n_x·w/D``, ``B = n_y·h/D``, ``C = (n_z − n_x·w·c_x − n_y·h·c_y)/D``,
-    ``D = n·x_p``; zeros where the plane contains the camera). Orthographic:
-    ``z = A·i + B·j + C`` (zeros where the plane contains the view axis).
+    ``D = n·x_p``). Orthographic: ``z = A·i + B·j + C``. NaN where the plane
+    contains the camera (the view axis): no sample passes the test there.
     The follow-surface rule accepts a sample within the depth tolerance of
     this plane as well as of the centre's depth.
     """
@@ -639,7 +685,7 @@ def tangent_planes(surf, normal, x, y, depth) -> np.ndarray:
             out[:, 0] = n[:, 0] * wu * inv
             out[:, 1] = n[:, 1] * hu * inv
             out[:, 2] = (n[:, 2] - n[:, 0] * wu * cx - n[:, 1] * hu * cy) * inv
-    out[~ok] = 0.0
+    out[~ok] = np.nan
     return out.astype(np.float32)
 
 

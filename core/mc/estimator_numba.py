@@ -40,8 +40,9 @@ from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, R2_STEP_U32
 
 #: Geometry modes of the kernel.
 PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
-#: Samples that go through each stage together (see pixel_sums): one AVX-512 vector
-#: of float32, and enough independent work to hide the latency of the reads.
+#: Samples that go through each stage together (see pixel_sums): enough independent
+#: work to overlap the latencies of the reads, square roots and divisions (8 and 32
+#: measured the same).
 BATCH = 16
 #: Pixels per parallel task (one set of batch buffers each).
 PIXELS_PER_TASK = 64
@@ -77,12 +78,14 @@ def _pcg3d_xy(x, y, z):
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _pdf(x, k, inv_d, ptab, size):
-    """Burley pdf at x of one channel from the unit table (:func:`core.profiles.burley.pdf_from_table`)."""
+    """Burley pdf at x of one channel from the flat unit table (as
+    :func:`core.profiles.burley.pdf_from_table`): k = size/(truncate·d), inv_d = 1/d."""
     s = x * k
     if s > size:
         s = size
-    i = np.uint64(s) * np.uint64(2)  # tables are read flat with unsigned indices: no
-    s = (s - np.float32(np.uint32(s))) * ptab[i + np.uint64(1)] + ptab[i]  # wrap-around test
+    # Unsigned indices: numba emits no negative-index wrap-around test.
+    i = np.uint64(s) * _TWO
+    s = (s - np.float32(np.uint32(s))) * ptab[i + _ONE] + ptab[i]
     return s * inv_d
 
 
@@ -114,6 +117,8 @@ def _pixel_sums(
     ntab,
     aspect,
     disk,
+    hidden,
+    direct,
     w,
     h,
     full_w,
@@ -160,6 +165,9 @@ def _pixel_sums(
         channel (:func:`core.profiles.burley.norm_table`, flat)
     aspect : float32, footprint width / height
     disk : bool, weigh with the kernel of Cycles' disk estimator (texel normals)
+    hidden : float32, the hidden-light share β (< 1: rejected samples on the background
+        or another material count −(1 − β)·B_direct(p) at their planar weight)
+    direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     w, h : int, frame (crop) size; full_w, full_h : float32, image size
     ox, oy : int, crop origin; slope : float32, depth slope
     mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera;
@@ -195,6 +203,7 @@ def _pixel_sums(
         b_q = np.empty(BATCH, np.int64)
         b_zq = np.empty(BATCH, np.float32)
         b_ok = np.empty(BATCH, np.bool_)
+        b_fill = np.empty(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
         b_n = np.empty(BATCH, np.float32)
         b_g = np.empty(BATCH, np.float32)
@@ -237,9 +246,9 @@ def _pixel_sums(
             # The centre's normal, disk axes and tangent plane (as disk_frame and
             # tangent_planes of core.mc.estimator).
             use_plane = mode != PLANAR
-            pa = zero
-            pb = zero
-            pc = zero
+            pa = np.float32(np.nan)  # no plane (planar mode, or a plane through the camera)
+            pb = np.float32(np.nan)
+            pc = np.float32(np.nan)
             nx = ny = nz = tx = ty = tz = bx = by = bz = zero
             rho_min = zero
             if use_plane:
@@ -298,6 +307,10 @@ def _pixel_sums(
             b0 = texel[c8]
             b1 = texel[c8 + _ONE]
             b2 = texel[c8 + _TWO]
+            use_fill = hidden < one
+            f0 = np.float32(-(one - hidden)) * direct[g, 0]
+            f1 = np.float32(-(one - hidden)) * direct[g, 1]
+            f2 = np.float32(-(one - hidden)) * direct[g, 2]
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -345,6 +358,7 @@ def _pixel_sums(
                     ix = np.int64(fx) - ox
                     iy = np.int64(fy) - oy
                     ok = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+                    inside = ok
                     q = centre
                     zq = zp
                     if ok:
@@ -362,19 +376,41 @@ def _pixel_sums(
                             on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
                         near = near | (use_plane & on_plane)
                         ok = (texel[q8 + _FIVE] == fmat) & near
+                    fill = False
                     if not ok:
+                        # Hidden surface: on the image, not in front of the centre.
+                        fill = use_fill and inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
                         zq = zp
                         if core:
                             nfb += 1
+                    b_fill[j] = fill
                     b_ok[j] = ok
                     b_q[j] = q
                     b_zq[j] = zq
                     b_fx[j] = fx
                     b_fy[j] = fy
-                # Stage 3: per-channel weights of the accepted samples.
+                # Stage 3: per-channel weights of the accepted samples (and the planar
+                # weights of the hidden-surface ones).
                 for j in range(nb):
                     if not b_ok[j]:
+                        if b_fill[j]:
+                            r = b_r[j]
+                            if mode != PLANAR or chrom:
+                                p0 = _pdf(r, ks0, i0, ptab, psize)
+                                p1 = _pdf(r, ks1, i1, ptab, psize)
+                                p2 = _pdf(r, ks2, i2, ptab, psize)
+                                norm = b_n[j] if mode != PLANAR else p0 + p1 + p2
+                                scale = zero
+                                if norm > zero:
+                                    scale = g_s / norm
+                                b_w[0, j] = p0 * scale
+                                b_w[1, j] = p1 * scale
+                                b_w[2, j] = p2 * scale
+                            else:
+                                b_w[0, j] = np.float32(g0)
+                                b_w[1, j] = np.float32(g1)
+                                b_w[2, j] = np.float32(g2)
                         continue
                     r = b_r[j]
                     if mode != PLANAR:
@@ -461,6 +497,19 @@ def _pixel_sums(
                 # centre: its difference is exactly 0, so it is skipped).
                 for j in range(nb):
                     if not b_ok[j]:
+                        if b_fill[j]:
+                            d0 = f0 * b_w[0, j]
+                            d1 = f1 * b_w[1, j]
+                            d2 = f2 * b_w[2, j]
+                            s0 += np.float64(d0)
+                            s1 += np.float64(d1)
+                            s2 += np.float64(d2)
+                            if want_var:
+                                y = d0 * np.float32(0.2126) + d1 * np.float32(0.7152)
+                                y = y + d2 * np.float32(0.0722)
+                                y64 = np.float64(y)
+                                v0 += y64
+                                v1 += y64 * y64
                         continue
                     q = b_q[j]
                     q8 = np.uint64(q) * _EIGHT
@@ -537,7 +586,18 @@ def kernel(samples: int):
 
 
 def run_kernel(
-    geom, profile, counts, active, lighting, depth, frame, seed, depth_slope, variance, disk=False
+    geom,
+    profile,
+    counts,
+    active,
+    lighting,
+    depth,
+    frame,
+    seed,
+    depth_slope,
+    variance,
+    disk=False,
+    hidden_light=1.0,
 ):
     """Per-pixel sums of the ``active`` SSS pixels of ``geom`` with the compiled kernel.
 
@@ -592,6 +652,8 @@ def run_kernel(
         profile._ntab.reshape(-1),
         f32(geom.fw[first] / geom.fh[first]),
         bool(disk),
+        f32(hidden_light),
+        geom.direct if geom.direct is not None else np.zeros((geom.size, 3), f32),
         w,
         h,
         f32(full_w),
@@ -652,6 +714,8 @@ def _warm(fn) -> None:
         np.ones(120, f32),
         f32(1.0),
         False,
+        f32(1.0),
+        np.zeros((1, 3), f32),
         1,
         1,
         f32(1.0),

@@ -153,6 +153,7 @@ class MonteCarloProcessor:
             variance=self.method.temporal == "guided",
             backend=p.backend,
             disk=p.distance == "cycles",
+            hidden_light=p.hidden_light,
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 

@@ -11,7 +11,7 @@ from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import frame_profile
 
 
-def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk=False):
+def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk=False, hidden=1.0):
     """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
 
     Parameters
@@ -22,6 +22,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk
     seed, slope : hash seed and follow-surface depth slope
     surface : weigh samples by the surface distance (SSSParams.distance)
     disk : with ``surface``, weigh them with Cycles' disk kernel (distance "cycles")
+    hidden : SSSParams.hidden_light
 
     Returns
     -------
@@ -42,6 +43,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk
         seed=seed,
         depth_slope=slope,
         disk=disk,
+        hidden_light=hidden,
     )
     b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     return geom, est, (1 - geom.gamma) * b + est.distant

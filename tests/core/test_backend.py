@@ -87,16 +87,25 @@ def test_every_method_same_result(name, distance):
             assert np.array_equal(state_a[k], state_b[k]), k
 
 
+@pytest.mark.parametrize("hidden", [1.0, 0.5])
 @pytest.mark.parametrize("inverse", ["exact", "fast"])
 @pytest.mark.parametrize("distance", ["surface", "cycles", "planar"])
-def test_estimate_with_variance_fast_inverse_and_a_chromatic_profile(inverse, distance):
-    """The variance path (temporal methods), both Burley samplers, per-channel profiles."""
+def test_estimate_with_variance_fast_inverse_and_a_chromatic_profile(inverse, distance, hidden):
+    """The variance path (temporal methods), both Burley samplers, per-channel profiles,
+    the hidden-light fill of samples that land off the surface."""
     frame = scene_frame("flash", 2, 160, 90)
     profile = frame_profile(frame, SSSParams(burley_inverse=inverse))
     assert profile.chromatic()[1:].any()  # per-channel weights are exercised
     geom = prepare(frame, profile, surface_distance=distance != "planar")
     counts = (np.arange(geom.size) % 37).astype(np.int32)  # includes m = 0 and m = 1
-    kw = dict(frame=2, seed=7, depth_slope=2.0, variance=True, disk=distance == "cycles")
+    kw = dict(
+        frame=2,
+        seed=7,
+        depth_slope=2.0,
+        variance=True,
+        disk=distance == "cycles",
+        hidden_light=hidden,
+    )
     a = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
     b = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, backend="numba", **kw)
     assert (a.samples, a.fallback) == (b.samples, b.fallback)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import importlib.util
 import json
@@ -250,12 +251,36 @@ def test_diffuse_indirect_is_optional(tmp_path):
     frame = read_frame(tmp_path / "0001.exr")
     assert frame.lighting_passes == ("Diffuse Direct",)
     np.testing.assert_array_equal(frame.lighting, 0.5)
+    assert frame.indirect is None
+
+
+def test_indirect_round_trip_and_the_direct_part(tmp_path):
+    """write_passes splits lighting by the frame's indirect pass; read_frame joins it
+    again; the Geometry's direct part is lighting − indirect (0 where it would be < 0)."""
+    from cvsss.core.geometry import prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import frame_profile
+    from cvsss.core.synthetic import flat_plane
+
+    frame = flat_plane(16, 12, d=(0.02, 0.01, 0.005))
+    indirect = np.full_like(frame.lighting, 0.2)
+    indirect[0, 0] = 5.0  # more than the lighting: clipped in the file, 0 direct
+    frame = dataclasses.replace(frame, indirect=indirect)
+    write_passes(tmp_path / "0001.exr", frame)
+    back = read_frame(tmp_path / "0001.exr")
+    np.testing.assert_allclose(back.lighting, frame.lighting, rtol=1e-6)
+    np.testing.assert_allclose(back.indirect, np.minimum(indirect, frame.lighting), rtol=1e-6)
+    geom = prepare(back, frame_profile(back, SSSParams()))
+    expected = (back.lighting - back.indirect).reshape(-1, 3)[geom.index]
+    np.testing.assert_allclose(geom.direct, np.maximum(expected, 0.0), atol=1e-7)
 
 
 def test_lighting_sums_direct_and_indirect(tmp_path):
     write_raw(tmp_path / "0001.exr", blender_passes())
     frame = read_frame(tmp_path / "0001.exr")
     np.testing.assert_allclose(frame.lighting, 0.75)
+    # The indirect part travels with the frame (the hidden-light fill scales the rest).
+    np.testing.assert_allclose(frame.indirect, 0.25)
     np.testing.assert_allclose(frame.albedo, 0.8)
     np.testing.assert_array_equal(frame.material, 1)
     assert frame.motion is None

@@ -293,12 +293,15 @@ def _orthonormals(n):
     return t, np.cross(n, t)
 
 
-def surface_quadrature(frame, profile, geom, pixels, disk=False):
+def surface_quadrature(frame, profile, geom, pixels, disk=False, hidden=1.0):
     """L by quadrature of the surface-distance integral the estimator defines (module doc).
 
     Samples follow the surface where the depth is within 2·r of the centre's or of
     its tangent plane. With ``disk``, a sample's value counts G = |Δ|·Σ_a m_a/ρ_a
     times (Cycles' disk kernel over the surface kernel, SSSParams.distance "cycles").
+    With ``hidden`` < 1, a sample that lands on the image off the surface and not on
+    something nearer counts −(1 − hidden)·B(p) (the frame has no indirect light) at
+    the profile's own weight.
     """
     cdf, rmax = burley_model_cdf(np.asarray(frame.materials[1].d))
     d = np.asarray(frame.materials[1].d)
@@ -380,7 +383,8 @@ def surface_quadrature(frame, profile, geom, pixels, disk=False):
                     inv += m / np.maximum(rho, 0.5 * geom.fw[k])
                     total += m
                 value = value * np.linalg.norm(delta, axis=-1) * inv / total
-            f = np.where(ok, g * (value - b[c]), 0.0)
+            fill = inside & ~ok & ~(zp - depth[q] > 0.1 * zp)
+            f = np.where(ok, g * (value - b[c]), np.where(fill, -(1.0 - hidden) * b[c], 0.0))
             out[i, c] = b[c] + gamma * f.mean()
     return out
 
@@ -483,6 +487,29 @@ def test_disk_kernel_is_unbiased_against_quadrature(sphere_disk_case):
     plain = surface_quadrature(frame, profile, geom, pixels)
     gain = float(np.mean(expected / plain))
     assert gain > 1.005, gain
+
+
+def test_hidden_light_fill_is_unbiased_against_quadrature():
+    """SSSParams.hidden_light < 1 on a sphere (silhouettes: samples off the surface): the
+    estimator is unbiased for the integral with the fill, which darkens the rims."""
+    light = lighting()
+    frame = SURFACE_CASES["sphere"](light)
+    profile = frame_profile(frame, SSSParams())
+    geom = prepare(frame, profile, surface_distance=True)
+    rim = silhouette(geom.mask(), frame.material, frame.depth).reshape(-1)[geom.index]
+    rng = np.random.default_rng(5)
+    pixels = np.sort(rng.choice(np.flatnonzero(rim), PIXELS, replace=False))
+    runs = np.stack(
+        [
+            shade(frame, SPP, profile, seed=s, surface=True, hidden=0.5)[2][pixels]
+            for s in range(SEEDS)
+        ]
+    )
+    expected = surface_quadrature(frame, profile, geom, pixels, hidden=0.5)
+    b = frame.lighting.reshape(-1, 3)[geom.index[pixels]]
+    assert_unbiased("sphere-hidden", runs, expected, b, 0.02)
+    plain = surface_quadrature(frame, profile, geom, pixels)
+    assert np.mean(expected / plain) < 0.98  # the fill darkens silhouette pixels
 
 
 @pytest.mark.parametrize("tilt", [0.0, 60.0, 78.0])
