@@ -21,6 +21,7 @@ conserving, L = B under constant light) likewise, ``--distance cycles`` near 1.
 """
 
 import math
+import os
 import sys
 
 import bpy
@@ -65,5 +66,6 @@ camera.rotation_euler = (math.radians(90.0), 0.0, 0.0)
 scene.collection.objects.link(camera)
 scene.camera = camera
 
+os.makedirs(os.path.dirname(os.path.abspath(sys.argv[-1])), exist_ok=True)
 bpy.ops.wm.save_as_mainfile(filepath=sys.argv[-1])
 print(f"saved {sys.argv[-1]}")
