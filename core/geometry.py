@@ -86,11 +86,37 @@ def positions(camera, depth: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np
         return np.stack([(xx - cx) * wu * scale, (yy - cy) * hu * scale, z], axis=-1)
 
 
-def surface(frame: Frame) -> Surface:
-    """The :class:`Surface` of ``frame`` (see the module doc)."""
+def surface(frame: Frame, backend: str = "numpy") -> Surface:
+    """The :class:`Surface` of ``frame`` (see the module doc).
+
+    ``backend`` (one of core.params.BACKENDS): where it resolves to numba, the
+    compiled pass :func:`core.mc.estimator_numba.surface_arrays` computes the
+    same arrays bit for bit in one pass over the pixels (the NumPy version
+    below makes ~40 passes over (H, W, 3) float64 arrays: half of a frame's
+    time once the sampling step is compiled).
+    """
     cam = frame.camera
     wu, hu = cam.unit_footprint()
     ortho = cam.type == "ORTHO"
+    if backend != "numpy":
+        from .mc import backend as mc_backend
+
+        if mc_backend.resolve(backend) == "numba":
+            from .mc.estimator_numba import surface_arrays
+
+            oy, ox = frame.origin
+            area, normal = surface_arrays(
+                np.ascontiguousarray(frame.depth, dtype=np.float32),
+                int(ox),
+                int(oy),
+                float(wu),
+                float(hu),
+                float(cam.principal_point[0]),
+                float(cam.principal_point[1]),
+                bool(ortho),
+                MAX_TILT,
+            )
+            return Surface(ortho, (wu, hu), cam.principal_point, area, normal)
     z = frame.depth.astype(np.float64)
     h, w = z.shape
     p = positions(cam, frame.depth, frame.origin)
@@ -305,6 +331,7 @@ def prepare(
     surface_distance: bool = False,
     core_only: bool = False,
     margin: int = 0,
+    backend: str = "numpy",
 ) -> Geometry:
     """Find the SSS pixels of ``frame`` and their footprint, r0, γ and sampling bounds.
 
@@ -326,6 +353,9 @@ def prepare(
         With ``core_only``, also take the pixels up to ``margin`` beyond the core
         (clipped to the window): a method that reads its 3×3 neighbours' own
         estimates (temporal reuse) needs them computed as the whole image would.
+    backend : str
+        ``SSSParams.backend``: computes the :class:`Surface` compiled where it
+        resolves to numba (the same arrays, see :func:`surface`).
 
     Returns
     -------
@@ -387,7 +417,7 @@ def prepare(
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
         weight=weight,
         direct=direct.astype(np.float32, copy=False),
-        surface=surface(frame) if surface_distance and index.size else None,
+        surface=surface(frame, backend) if surface_distance and index.size else None,
         origin=frame.origin,
         image=None if frame.crop is None else frame.image_shape,
         core=core,

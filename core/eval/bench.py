@@ -105,8 +105,11 @@ MeasureWorkers = Callable[["BenchConfig"], dict]
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 COST_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
-#: Every section, in the order they run.
-SECTIONS = ("cost", "frames", "fit", "coverage", "resolution", "rss", "pareto", "workers")
+#: Every section, in the order they run. ``rss`` runs last: its fresh processes take and
+#: free gigabytes, and for minutes afterwards the machine (here a VM returning the freed
+#: pages) slowed every timing section by spells of tens of milliseconds (the Pareto
+#: sweep's pass times by up to 1.6x on a quiet machine).
+SECTIONS = ("cost", "frames", "fit", "coverage", "resolution", "pareto", "workers", "rss")
 #: Section → its key in the result (default: the section's name).
 RESULT_KEYS = {
     "frames": "frame_time_ms",

@@ -133,6 +133,7 @@ class MonteCarloProcessor:
             surface_distance=p.distance != "planar",
             core_only=True,
             margin=1 if self.method.temporal else 0,
+            backend=p.backend,
         )
         hist = self._aligned_history(frame) if self.method.adaptive else None
         m, valid = self._counts(geom, hist)
