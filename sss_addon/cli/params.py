@@ -49,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                 continue
             default = f.default if f.default is not MISSING else None
             text = spec.describe() + (f" (default {default})" if default is not None else "")
+            text = text.replace("%", "%%")  # argparse formats help with %: "7 %" is text
             kwargs = {"dest": _dest(group, f.name), "default": None, "help": text}
             if spec.choices is not None:
                 # Checked by the dataclass, so a bad value is one error naming the flag.
@@ -66,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                 dest=_dest(group, "material"),
                 default=None,
                 metavar="PRESET|SLOT=PRESET,...",
-                help=material.help,
+                help=material.help.replace("%", "%%"),
             )
 
 

@@ -171,3 +171,26 @@ def test_overwrite_removes_results_the_new_run_does_not_make(passes, tmp_path):
     assert cli.main([*common, "--overwrite", "--reference-every", "2"]) == 0
     assert sorted(p.name for p in (out / "reference").glob("*.exr")) == ["0001.exr", "0003.exr"]
     assert len(list((out / "as").glob("*.exr"))) == 4
+
+
+def _subcommands(parser, path=()):
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*path, name), sub
+                yield from _subcommands(sub, (*path, name))
+
+
+def test_every_help_prints(capsys):
+    """`cvsss <command> --help` works for every command: help texts pass through
+    argparse's %-formatting (a parameter's "7 %" once broke `post --help`)."""
+    commands = list(_subcommands(cli.build_parser()))
+    assert {("post",), ("render",), ("demo",)} <= {c for c, _ in commands}
+    for command, _ in commands:
+        with pytest.raises(SystemExit) as stop:
+            cli.main([*command, "--help"])
+        assert stop.value.code == 0, command
+        out = capsys.readouterr().out
+        assert "usage:" in out, command
