@@ -54,9 +54,9 @@ fig2: $(STAMP)
 	$(BIN)/cvsss fig2 --out $(OUT)
 
 # Speed and the speed/accuracy trade (issue #6): out/bench/bench.json + plots, per sampling
-# backend (NumPy, numba; issue 15). 26 min on 2 cores of which one was busy with another job:
-# frame times at 720p-1440p 8.5 min, the Pareto sweep on both backends 5.7 min, the tiled
-# post on 1 and 2 Dask workers at 1280x720 2 min (section workers, issue 16).
+# backend (NumPy, numba; issue 15). 10 min on 2 quiet cores: frame times at 720p-1440p
+# 2.4 min, the Pareto sweep on both backends 3 min, the tiled post on 1 and 2 Dask workers
+# at 1280x720 1 min (section workers, issue 16); the memory section runs last.
 # `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
 bench: $(STAMP)
 	$(BIN)/cvsss bench --out $(OUT)/bench

@@ -9,7 +9,7 @@ did not tune (README, *Reading the report*):
 
     .venv/bin/python docs/checks/flicker_point_light.py out/check/scene.blend
     .venv/bin/cvsss render out/check/scene.blend --frames 1-30 --out out/check/run \
-        --method none,as_ccv,as_ccv_t,as_t --reference --reference-every 1 \
+        --method none,separable,as_ccv,as_ccv_t,as_t --reference --reference-every 1 \
         --ground-truth --ground-truth-every 5 --ground-truth-spp 512
 """
 
