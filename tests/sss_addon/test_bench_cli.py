@@ -132,9 +132,9 @@ def test_quick_run_writes_bench_json(quick_run):
         "samples_time_r2",
         "coverage_scaling",
         "resolution_scaling",
-        "peak_rss_mb",
         "pareto",
         "workers",
+        "peak_rss_mb",  # runs last (core.eval.bench.SECTIONS)
         "backend_default",
         "cost_method",
         "ns_per_sample",
