@@ -680,6 +680,9 @@ def warm_up() -> None:
     """Run the kernels once on one pixel (compiles them, or loads them from the disk cache)."""
     for fn in (pixel_sums, pixel_sums_serial):
         _warm(fn)
+    depth = np.full((2, 2), 2.0, np.float32)
+    for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
+        surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
 
 
 def _warm(fn) -> None:
