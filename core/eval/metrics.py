@@ -100,19 +100,18 @@ def channel_ratio(test: np.ndarray, ground_truth: np.ndarray, mask: np.ndarray) 
         return np.where(gt > 0, ours / gt, np.nan)
 
 
-def silhouette(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """(H, W) bool: SSS pixels at a silhouette or material edge.
-
-    An SSS pixel whose 8-neighbourhood holds a pixel of another material, the
-    background, or a depth more than 10 % away (an occlusion edge) — where
-    screen-space scattering runs out of surface (the rims of SPEC §11).
-    The image border does not count as an edge.
-    """
-    mask = np.asarray(mask, dtype=bool)
+def _neighbour_edges(
+    material: np.ndarray, depth: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(H, W) bool masks of what the 8-neighbourhood holds: ``farther`` (the background
+    or a depth more than 10 % farther), ``nearer`` (a depth more than 10 % nearer),
+    ``other`` (another material). The image border repeats the edge pixels."""
     mat = np.asarray(material)
     z = np.asarray(depth, dtype=np.float64)
-    h, w = mask.shape
-    edge = np.zeros((h, w), dtype=bool)
+    h, w = z.shape
+    farther = np.zeros((h, w), dtype=bool)
+    nearer = np.zeros((h, w), dtype=bool)
+    other = np.zeros((h, w), dtype=bool)
     pad_m = np.pad(mat, 1, mode="edge")
     pad_z = np.pad(z, 1, mode="edge")
     with np.errstate(invalid="ignore"):
@@ -122,8 +121,22 @@ def silhouette(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> np.
                     continue
                 nm = pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
                 nz = pad_z[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-                edge |= (nm != mat) | ~np.isfinite(nz) | (np.abs(nz - z) > 0.1 * z)
-    return mask & edge
+                farther |= ~np.isfinite(nz) | (nz - z > 0.1 * z)
+                nearer |= z - nz > 0.1 * z
+                other |= nm != mat
+    return farther, nearer, other
+
+
+def silhouette(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(H, W) bool: SSS pixels at a silhouette or material edge.
+
+    An SSS pixel whose 8-neighbourhood holds a pixel of another material, the
+    background, or a depth more than 10 % away (an occlusion edge) — where
+    screen-space scattering runs out of surface (the rims of SPEC §11).
+    The image border does not count as an edge.
+    """
+    farther, nearer, other = _neighbour_edges(material, depth)
+    return np.asarray(mask, dtype=bool) & (farther | nearer | other)
 
 
 #: Kinds of :func:`edge_kinds`, in order of precedence.
@@ -145,24 +158,7 @@ def edge_kinds(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> dic
     dict kind -> (H, W) bool
     """
     mask = np.asarray(mask, dtype=bool)
-    mat = np.asarray(material)
-    z = np.asarray(depth, dtype=np.float64)
-    h, w = mask.shape
-    farther = np.zeros((h, w), dtype=bool)
-    nearer = np.zeros((h, w), dtype=bool)
-    other = np.zeros((h, w), dtype=bool)
-    pad_m = np.pad(mat, 1, mode="edge")
-    pad_z = np.pad(z, 1, mode="edge")
-    with np.errstate(invalid="ignore"):
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dx == dy == 0:
-                    continue
-                nm = pad_m[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-                nz = pad_z[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-                farther |= ~np.isfinite(nz) | (nz - z > 0.1 * z)
-                nearer |= z - nz > 0.1 * z
-                other |= nm != mat
+    farther, nearer, other = _neighbour_edges(material, depth)
     outer = mask & farther
     occluded = mask & nearer & ~outer
     contact = mask & other & ~outer & ~occluded

@@ -231,53 +231,37 @@ def _points(camera, depth):
     return np.stack([(xx - cx) * wu * z, (yy - cy) * hu * z, z], axis=-1)
 
 
-def _pixel_area(p):
-    """Area per pixel from differences of the points: central where both neighbours continue
-    the surface (depth steps within 2x), else the side with the smaller depth step."""
-
-    def side(axis):
-        fwd = np.full_like(p, np.nan)
-        bwd = np.full_like(p, np.nan)
-        if axis == 1:
-            fwd[:, :-1] = bwd[:, 1:] = p[:, 1:] - p[:, :-1]
-        else:
-            fwd[:-1] = bwd[1:] = p[1:] - p[:-1]
-        with np.errstate(invalid="ignore"):
-            fwd[~np.isfinite(fwd).all(-1)] = np.nan
-            bwd[~np.isfinite(bwd).all(-1)] = np.nan
-            af, ab = np.abs(fwd[..., 2]), np.abs(bwd[..., 2])
-            pick = np.isnan(af) | (ab < af)
-            both = np.isfinite(af + ab) & (
-                np.maximum(af, ab) <= 2 * np.minimum(af, ab) + 1e-6 * p[..., 2]
-            )
-        return np.where(both[..., None], (fwd + bwd) / 2, np.where(pick[..., None], bwd, fwd))
-
+def _side(p, axis):
+    """The test's own step between pixel points along ``axis``: central where both
+    neighbours continue the surface (depth steps within 2x), else the side with the
+    smaller depth step."""
+    fwd = np.full_like(p, np.nan)
+    bwd = np.full_like(p, np.nan)
+    if axis == 1:
+        fwd[:, :-1] = bwd[:, 1:] = p[:, 1:] - p[:, :-1]
+    else:
+        fwd[:-1] = bwd[1:] = p[1:] - p[:-1]
     with np.errstate(invalid="ignore"):
-        return np.linalg.norm(np.cross(side(1), side(0)), axis=-1)
+        fwd[~np.isfinite(fwd).all(-1)] = np.nan
+        bwd[~np.isfinite(bwd).all(-1)] = np.nan
+        af, ab = np.abs(fwd[..., 2]), np.abs(bwd[..., 2])
+        pick = np.isnan(af) | (ab < af)
+        both = np.isfinite(af + ab) & (
+            np.maximum(af, ab) <= 2 * np.minimum(af, ab) + 1e-6 * p[..., 2]
+        )
+    return np.where(both[..., None], (fwd + bwd) / 2, np.where(pick[..., None], bwd, fwd))
+
+
+def _pixel_area(p):
+    """Area per pixel from the cross product of the test's own steps (:func:`_side`)."""
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(np.cross(_side(p, 1), _side(p, 0)), axis=-1)
 
 
 def _normals(p):
     """Unit normals of the test's own pixel patches, towards the camera (float64)."""
-
-    def side(axis):
-        fwd = np.full_like(p, np.nan)
-        bwd = np.full_like(p, np.nan)
-        if axis == 1:
-            fwd[:, :-1] = bwd[:, 1:] = p[:, 1:] - p[:, :-1]
-        else:
-            fwd[:-1] = bwd[1:] = p[1:] - p[:-1]
-        with np.errstate(invalid="ignore"):
-            fwd[~np.isfinite(fwd).all(-1)] = np.nan
-            bwd[~np.isfinite(bwd).all(-1)] = np.nan
-            af, ab = np.abs(fwd[..., 2]), np.abs(bwd[..., 2])
-            pick = np.isnan(af) | (ab < af)
-            both = np.isfinite(af + ab) & (
-                np.maximum(af, ab) <= 2 * np.minimum(af, ab) + 1e-6 * p[..., 2]
-            )
-        return np.where(both[..., None], (fwd + bwd) / 2, np.where(pick[..., None], bwd, fwd))
-
     with np.errstate(invalid="ignore"):
-        n = np.cross(side(1), side(0))
+        n = np.cross(_side(p, 1), _side(p, 0))
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
         flip = np.sum(n * p, axis=-1) > 0
     return np.where(flip[..., None], -n, n)
