@@ -393,27 +393,10 @@ def _pixel_sums(
                 # Stage 3: per-channel weights of the accepted samples (and the planar
                 # weights of the hidden-surface ones).
                 for j in range(nb):
-                    if not b_ok[j]:
-                        if b_fill[j]:
-                            r = b_r[j]
-                            if mode != PLANAR or chrom:
-                                p0 = _pdf(r, ks0, i0, ptab, psize)
-                                p1 = _pdf(r, ks1, i1, ptab, psize)
-                                p2 = _pdf(r, ks2, i2, ptab, psize)
-                                norm = b_n[j] if mode != PLANAR else p0 + p1 + p2
-                                scale = zero
-                                if norm > zero:
-                                    scale = g_s / norm
-                                b_w[0, j] = p0 * scale
-                                b_w[1, j] = p1 * scale
-                                b_w[2, j] = p2 * scale
-                            else:
-                                b_w[0, j] = np.float32(g0)
-                                b_w[1, j] = np.float32(g1)
-                                b_w[2, j] = np.float32(g2)
+                    if not (b_ok[j] or b_fill[j]):
                         continue
                     r = b_r[j]
-                    if mode != PLANAR:
+                    if b_ok[j] and mode != PLANAR:
                         zq = b_zq[j]
                         if mode == ORTHO:
                             dx = (b_qx[j] - px) * unit_x
@@ -478,11 +461,13 @@ def _pixel_sums(
                         b_w[0, j] = w0 * scale
                         b_w[1, j] = w1 * scale
                         b_w[2, j] = w2 * scale
-                    elif chrom:
+                    elif mode != PLANAR or chrom:
+                        # Planar weights: every accepted sample of the planar mode, and the
+                        # hidden-surface samples of the surface modes (their mixture density).
                         p0 = _pdf(r, ks0, i0, ptab, psize)
                         p1 = _pdf(r, ks1, i1, ptab, psize)
                         p2 = _pdf(r, ks2, i2, ptab, psize)
-                        norm = p0 + p1 + p2
+                        norm = b_n[j] if mode != PLANAR else p0 + p1 + p2
                         scale = zero
                         if norm > zero:
                             scale = g_s / norm
