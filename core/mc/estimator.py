@@ -203,6 +203,21 @@ class Pixels:
     direct: np.ndarray | None = None
 
 
+def _offset(sx, sy, zq, px, py, zp, cx, cy, unit_x, unit_y, ortho: bool):
+    """Camera-space x, y offset (scene units, float32) from the centre pixel (px, py) at
+    depth zp to the screen point (sx, sy) at depth zq (perspective: through the
+    principal point (cx, cy); ortho: depth does not scale it)."""
+    if ortho:
+        return (sx - px) * unit_x, (sy - py) * unit_y
+    dx = (sx - cx) * zq
+    dx -= (px - cx) * zp
+    dx *= unit_x
+    dy = (sy - cy) * zq
+    dy -= (py - cy) * zp
+    dy *= unit_y
+    return dx, dy
+
+
 def active_pixels(
     geom: Geometry, profile: Profile, counts: np.ndarray, active: np.ndarray, frame: int, seed: int
 ) -> Pixels:
@@ -567,17 +582,10 @@ def _numpy_sums(
             # against the centre's; the profile at that distance over the profile
             # at r (R = pdf/(2πr)) times the area Jacobian.
             zq = np.where(ok, zq, zp)
+            dx, dy = _offset(qx, qy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
             if surf.ortho:
-                dx = (qx - px) * unit_x
-                dy = (qy - py) * unit_y
                 plane = np.repeat(pix.fwfh[a:b], c)
             else:
-                dx = (qx - cx) * zq
-                dx -= (px - cx) * zp
-                dx *= unit_x
-                dy = (qy - cy) * zq
-                dy -= (py - cy) * zp
-                dy *= unit_y
                 plane = zp * zp
                 plane *= np.float32(surf.unit[0] * surf.unit[1])
             dz = zq - zp
@@ -595,16 +603,7 @@ def _numpy_sums(
                 # sample's value B(q) counts G times against the centre's B(p). Δ runs
                 # to the landing pixel's own point (its centre), so that on a plane it
                 # lies in the plane and G = 1.
-                if surf.ortho:
-                    ex = (fx - px) * unit_x
-                    ey = (fy - py) * unit_y
-                else:
-                    ex = (fx - cx) * zq
-                    ex -= (px - cx) * zp
-                    ex *= unit_x
-                    ey = (fy - cy) * zq
-                    ey -= (py - cy) * zp
-                    ey *= unit_y
+                ex, ey = _offset(fx, fy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
                 gain = _disk_gain(ex, ey, dz, q, surf.normal, pix, a, c)
                 diff *= np.where(ok, gain, np.float32(1.0))
             diff -= centre_rep
