@@ -44,6 +44,21 @@ PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
 #: work to overlap the latencies of the reads, square roots and divisions (8 and 32
 #: measured the same).
 BATCH = 16
+#: Rows of the per-task batch buffer (see pixel_sums): offsets of each value.
+_ROW_R = 0 * BATCH
+_ROW_QX = 1 * BATCH
+_ROW_QY = 2 * BATCH
+_ROW_ZQ = 3 * BATCH
+_ROW_N = 4 * BATCH
+_ROW_G = 5 * BATCH
+_ROW_FX = 6 * BATCH
+_ROW_FY = 7 * BATCH
+_ROW_A = 8 * BATCH
+_ROW_MX = 9 * BATCH
+_ROW_MY = 10 * BATCH
+_ROW_X = 11 * BATCH
+_ROW_S = 12 * BATCH
+_ROWS = 13
 #: Pixels per parallel task (one set of batch buffers each).
 PIXELS_PER_TASK = 64
 _M32 = np.uint64(0xFFFFFFFF)
@@ -197,18 +212,14 @@ def _pixel_sums(
         # independent (straight-line code over table reads, no library calls), so the
         # reads and long latencies of a batch overlap. Per-sample arithmetic and the
         # order of the sums are those of the plain loop.
-        b_r = np.empty(BATCH, np.float32)
-        b_qx = np.empty(BATCH, np.float32)
-        b_qy = np.empty(BATCH, np.float32)
+        # One buffer for the batch's float32 values (rows of BATCH): the
+        # compiler then sees that stage 3's stores cannot alias its loads, and
+        # vectorises it (with one array per value it did not).
+        fb = np.empty(_ROWS * BATCH, np.float32)
         b_q = np.empty(BATCH, np.int64)
-        b_zq = np.empty(BATCH, np.float32)
         b_ok = np.empty(BATCH, np.bool_)
         b_fill = np.empty(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
-        b_n = np.empty(BATCH, np.float32)
-        b_g = np.empty(BATCH, np.float32)
-        b_fx = np.empty(BATCH, np.float32)
-        b_fy = np.empty(BATCH, np.float32)
         t_a = np.empty(3, np.float32)
         idch = np.empty(3, np.float32)
         t_b = np.empty(3, np.float32)
@@ -343,18 +354,18 @@ def _pixel_sums(
                         nv = f * ntab[row + _ONE] + ntab[row]
                         if s < ntab[row + _TWO]:
                             nv -= ntab[row + _THREE]
-                        b_n[j] = nv * idch[ch]
+                        fb[_ROW_N + j] = nv * idch[ch]
                     di = ((hyi + kk * _B) & _M32) >> _DIR_SHIFT
                     rp = r * rpx
                     qx = rp * dirs[di * _TWO] + px
                     qy = rp * dirs[di * _TWO + _ONE] * aspect + py
-                    b_r[j] = r
-                    b_qx[j] = min(max(qx, np.float32(-1.0)), full_w)
-                    b_qy[j] = min(max(qy, np.float32(-1.0)), full_h)
+                    fb[_ROW_R + j] = r
+                    fb[_ROW_QX + j] = min(max(qx, np.float32(-1.0)), full_w)
+                    fb[_ROW_QY + j] = min(max(qy, np.float32(-1.0)), full_h)
                 # Stage 2: the follow-surface tests.
                 for j in range(nb):
-                    fx = np.rint(b_qx[j])
-                    fy = np.rint(b_qy[j])
+                    fx = np.rint(fb[_ROW_QX + j])
+                    fy = np.rint(fb[_ROW_QY + j])
                     ix = np.int64(fx) - ox
                     iy = np.int64(fy) - oy
                     ok = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
@@ -365,7 +376,7 @@ def _pixel_sums(
                         q = iy * w + ix
                         q8 = np.uint64(q) * _EIGHT
                         zq = texel[q8 + _THREE]
-                        tol = slope * b_r[j]
+                        tol = slope * fb[_ROW_R + j]
                         near = abs(zq - zp) <= tol
                         # Or within the tolerance of the centre's tangent plane (evaluated
                         # without a branch: which test passes is hard to predict).
@@ -387,48 +398,53 @@ def _pixel_sums(
                     b_fill[j] = fill
                     b_ok[j] = ok
                     b_q[j] = q
-                    b_zq[j] = zq
-                    b_fx[j] = fx
-                    b_fy[j] = fy
+                    fb[_ROW_ZQ + j] = zq
+                    if use_plane:
+                        # The landing texel's area and normal (the centre's when rejected),
+                        # for stage 3's branch-free arithmetic.
+                        q8 = np.uint64(q) * _EIGHT
+                        fb[_ROW_A + j] = texel[q8 + _FOUR]
+                        fb[_ROW_MX + j] = texel[q8 + _SIX]
+                        fb[_ROW_MY + j] = texel[q8 + _SEVEN]
+                    fb[_ROW_FX + j] = fx
+                    fb[_ROW_FY + j] = fy
                 # Stage 3: per-channel weights of the accepted samples (and the planar
-                # weights of the hidden-surface ones).
-                for j in range(nb):
-                    if not (b_ok[j] or b_fill[j]):
-                        continue
-                    r = b_r[j]
-                    if b_ok[j] and mode != PLANAR:
-                        zq = b_zq[j]
+                # weights of the hidden-surface ones). In the surface modes the arithmetic
+                # (distance, Cycles' disk gain, scale: the square roots and divisions) runs
+                # first for the whole batch without a branch, so the compiler vectorises
+                # it; the table reads follow in a scalar loop. A rejected sample computes
+                # values it never uses (from the centre's texel): selects, not branches.
+                if mode != PLANAR:
+                    for j in range(nb):
+                        r = fb[_ROW_R + j]
+                        zq = fb[_ROW_ZQ + j]
                         if mode == ORTHO:
-                            dx = (b_qx[j] - px) * unit_x
-                            dy = (b_qy[j] - py) * unit_y
+                            dx = (fb[_ROW_QX + j] - px) * unit_x
+                            dy = (fb[_ROW_QY + j] - py) * unit_y
                         else:
-                            dx = ((b_qx[j] - cx) * zq - (px - cx) * zp) * unit_x
-                            dy = ((b_qy[j] - cy) * zq - (py - cy) * zp) * unit_y
+                            dx = ((fb[_ROW_QX + j] - cx) * zq - (px - cx) * zp) * unit_x
+                            dy = ((fb[_ROW_QY + j] - cy) * zq - (py - cy) * zp) * unit_y
                         dz = zq - zp
                         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
                         if dist < np.float32(1e-30):
                             dist = np.float32(1e-30)
-                        norm = b_n[j]
-                        q8 = np.uint64(b_q[j]) * _EIGHT
-                        w0 = _pdf(dist, ks0, i0, ptab, psize)
-                        w1 = _pdf(dist, ks1, i1, ptab, psize)
-                        w2 = _pdf(dist, ks2, i2, ptab, psize)
-                        area_q = texel[q8 + _FOUR]
-                        b_g[j] = one
+                        norm = fb[_ROW_N + j]
+                        area_q = fb[_ROW_A + j]
+                        gq = one
                         if disk:
                             # Cycles' disk kernel: G = |Δ|·Σ_a m_a/ρ_a.
-                            mx = texel[q8 + _SIX]
-                            my = texel[q8 + _SEVEN]
+                            mx = fb[_ROW_MX + j]
+                            my = fb[_ROW_MY + j]
                             mz = np.float32(
                                 math.copysign(np.sqrt(max(one - (mx * mx + my * my), zero)), area_q)
                             )
                             # From the landing pixel's own point: on a plane, G = 1.
                             if mode == ORTHO:
-                                ex = (b_fx[j] - px) * unit_x
-                                ey = (b_fy[j] - py) * unit_y
+                                ex = (fb[_ROW_FX + j] - px) * unit_x
+                                ey = (fb[_ROW_FY + j] - py) * unit_y
                             else:
-                                ex = ((b_fx[j] - cx) * zq - (px - cx) * zp) * unit_x
-                                ey = ((b_fy[j] - cy) * zq - (py - cy) * zp) * unit_y
+                                ex = ((fb[_ROW_FX + j] - cx) * zq - (px - cx) * zp) * unit_x
+                                ey = ((fb[_ROW_FY + j] - cy) * zq - (py - cy) * zp) * unit_y
                             aN = ex * nx + ey * ny + dz * nz
                             aT = ex * tx + ey * ty + dz * tz
                             aB = ex * bx + ey * by + dz * bz
@@ -440,8 +456,7 @@ def _pixel_sums(
                             cB = cB * cB
                             total = cN + cT + cB
                             # G = Σ_a c_a·(|Δ|/ρ_a)/total with the squares of ρ_a/|Δ|
-                            # (clamped at ρ_min) and two divisions (the divider, not the
-                            # arithmetic, bounds this stage).
+                            # (clamped at ρ_min) and two divisions.
                             l2 = aN * aN + aT * aT + aB * aB
                             lo2 = rho_min * rho_min
                             il2 = one / l2
@@ -452,22 +467,35 @@ def _pixel_sums(
                             gv = cN * np.sqrt(qT * qB * big)
                             gv = gv + cT * np.sqrt(qB * qN * big)
                             gv = gv + cB * np.sqrt(qN * qT * big)
-                            b_g[j] = one
                             if total > zero and l2 > zero:
-                                b_g[j] = gv
+                                gq = gv
                         scale = zero
+                        fscale = zero
                         if norm > zero:
                             scale = g_s * r * abs(area_q) / (dist * norm * plane)
-                        b_w[0, j] = w0 * scale
-                        b_w[1, j] = w1 * scale
-                        b_w[2, j] = w2 * scale
-                    elif mode != PLANAR or chrom:
-                        # Planar weights: every accepted sample of the planar mode, and the
-                        # hidden-surface samples of the surface modes (their mixture density).
+                            fscale = g_s / norm
+                        # Accepted: the profile at the surface distance; hidden-surface
+                        # fills: the planar weight (the mixture density at r).
+                        ok = b_ok[j]
+                        fb[_ROW_X + j] = dist if ok else r
+                        fb[_ROW_S + j] = scale if ok else fscale
+                        fb[_ROW_G + j] = gq
+                for j in range(nb):
+                    if not (b_ok[j] or b_fill[j]):
+                        continue
+                    if mode != PLANAR:
+                        x = fb[_ROW_X + j]
+                        scale = fb[_ROW_S + j]
+                        b_w[0, j] = _pdf(x, ks0, i0, ptab, psize) * scale
+                        b_w[1, j] = _pdf(x, ks1, i1, ptab, psize) * scale
+                        b_w[2, j] = _pdf(x, ks2, i2, ptab, psize) * scale
+                    elif chrom:
+                        # Planar weights: every accepted sample of the planar mode.
+                        r = fb[_ROW_R + j]
                         p0 = _pdf(r, ks0, i0, ptab, psize)
                         p1 = _pdf(r, ks1, i1, ptab, psize)
                         p2 = _pdf(r, ks2, i2, ptab, psize)
-                        norm = b_n[j] if mode != PLANAR else p0 + p1 + p2
+                        norm = p0 + p1 + p2
                         scale = zero
                         if norm > zero:
                             scale = g_s / norm
@@ -499,7 +527,7 @@ def _pixel_sums(
                     q = b_q[j]
                     q8 = np.uint64(q) * _EIGHT
                     if disk:
-                        gq = b_g[j]
+                        gq = fb[_ROW_G + j]
                         d0 = (texel[q8] * gq - b0) * b_w[0, j]
                         d1 = (texel[q8 + _ONE] * gq - b1) * b_w[1, j]
                         d2 = (texel[q8 + _TWO] * gq - b2) * b_w[2, j]
