@@ -274,19 +274,29 @@ class Geometry:
         """(H, W) of the whole image (pixels outside it are off screen)."""
         return self.shape if self.image is None else self.image
 
+    # Per-channel column operations: NumPy's reductions along a length-3 axis cost
+    # 5-6x more (the same values: (γ_0 + γ_1) + γ_2 is the order sum() takes).
     @cached_property
     def gamma_sum(self) -> np.ndarray:
         """(P,) Σ_c γ_c."""
-        return self.gamma.sum(axis=1)
+        g = self.gamma
+        return g[:, 0] + g[:, 1] + g[:, 2]
 
     @property
     def size(self) -> int:
         return int(self.index.shape[0])
 
-    @property
+    @cached_property
     def gamma_max(self) -> np.ndarray:
         """(P,) largest γ over channels (the ε_u test of P Eq. 18)."""
-        return self.gamma.max(axis=1) if self.size else np.zeros(0)
+        if not self.size:
+            return np.zeros(0)
+        g = self.gamma
+        return np.maximum(np.maximum(g[:, 0], g[:, 1]), g[:, 2])
+
+    def at(self, image: np.ndarray) -> np.ndarray:
+        """(P, ...) values of an (H, W, ...) image at the SSS pixels (same dtype)."""
+        return take_rows(image, self.index, self.shape)
 
     def mask(self) -> np.ndarray:
         """(H, W) bool mask of the SSS pixels."""
@@ -303,6 +313,17 @@ class Geometry:
         out = np.full((self.shape[0] * self.shape[1], *values.shape[1:]), fill, dtype=dtype)
         out[self.index] = values
         return out.reshape(*self.shape, *values.shape[1:])
+
+
+def take_rows(image: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(P, ...) pixels ``index`` of an (H, W, ...) ``image`` (``shape`` = (H, W)).
+
+    ``np.take`` along the pixel axis: the same values as ``image.reshape(H·W,
+    ...)[index]``, 4-5x faster for multi-channel images (NumPy's fancy indexing
+    of rows does not use the contiguous row copy ``take`` does).
+    """
+    flat = image.reshape(shape[0] * shape[1], *image.shape[2:])
+    return np.take(flat, index, axis=0)
 
 
 def light_scale(frame: Frame, profile: Profile) -> np.ndarray:
@@ -396,9 +417,10 @@ def prepare(
     if frame.sss_weight is not None:
         per_pixel = frame.sss_weight.reshape(-1)[index].astype(np.float64)
         weight = np.where(np.isnan(per_pixel), weight, per_pixel)
-    direct = frame.lighting.reshape(-1, 3)[index]
+    direct = take_rows(frame.lighting, index, (h, w))
     if frame.indirect is not None:
-        direct = np.maximum(direct - frame.indirect.reshape(-1, 3)[index], np.float32(0.0))
+        indirect = take_rows(frame.indirect, index, (h, w))
+        direct = np.maximum(direct - indirect, np.float32(0.0))
     return Geometry(
         shape=(h, w),
         index=index,

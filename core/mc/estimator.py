@@ -348,7 +348,7 @@ def estimate_distant(
     # The disk kernel lives on the depth-buffer surface (prepare(surface_distance=True)),
     # which a frame without SSS pixels does not have.
     disk = disk and geom.surface is not None
-    distant = geom.gamma * lighting.reshape(-1, 3)[geom.index].astype(np.float64)
+    distant = geom.gamma * geom.at(lighting).astype(np.float64)
     counts = np.asarray(counts, dtype=np.int64)
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
     total = int(counts[active].sum())
@@ -391,7 +391,10 @@ def estimate_distant(
             disk,
             hidden_light,
         )
-    distant[active] += sums / act_counts[:, None]
+    if active.size == geom.size:
+        distant += sums / act_counts[:, None]
+    else:
+        distant[active] += sums / act_counts[:, None]
     spread = None
     if variance:
         var_sum = np.zeros((geom.size, 2))

@@ -158,7 +158,7 @@ class MonteCarloProcessor:
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 
-        b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
+        b = geom.at(frame.lighting).astype(np.float64)
         distant = est.distant
         proxy = None
         if self.method.temporal == "guided" and p.temporal_mode == "multiplicative":

@@ -417,7 +417,7 @@ class BurleyProfile(Profile):
         return np.any(self.d[:, 1:] != self.d[:, :1], axis=1)
 
     def region(self, r0, mat):
-        d = self.d[mat]
+        d = np.take(self.d, mat, axis=0)
         r0 = np.asarray(r0, dtype=np.float64)[:, None]
         rmax = d * self.truncate
         t_hi = tail(np.minimum(r0, rmax), d)
