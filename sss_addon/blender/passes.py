@@ -571,7 +571,7 @@ def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool
     if denoise:
         from .denoise import denoise_pass_file
 
-        denoise_pass_file(path, view_layer.name)
+        denoise_pass_file(path, view_layer.name, scene.cycles.samples)
 
 
 def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]) -> None:
