@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .geometry import take_rows
+
 if TYPE_CHECKING:
     from .frame import Frame
     from .geometry import Geometry
@@ -95,15 +97,15 @@ def composite(
     sss : (H, W, 3) float32, L on SSS pixels and B elsewhere
     """
     shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=_BIG), 0.0, _BIG)
-    # np.take reads the rows (4-5x faster than fancy indexing, same values).
-    b = np.take(frame.lighting.reshape(-1, 3), index, axis=0).astype(np.float64)
-    albedo = np.take(frame.albedo.reshape(-1, 3), index, axis=0)
+    shape = frame.lighting.shape[:2]
+    b = take_rows(frame.lighting, index, shape).astype(np.float64)
+    albedo = take_rows(frame.albedo, index, shape)
     out = frame.combined.copy()
     flat = out.reshape(-1, 3)
     change = shaded - b
     if weight is not None and not np.all(weight == 1.0):
         change *= np.asarray(weight, dtype=np.float64)[:, None]
-    flat[index] = np.clip(np.take(flat, index, axis=0) + albedo * change, 0.0, _BIG)
+    flat[index] = np.clip(take_rows(out, index, shape) + albedo * change, 0.0, _BIG)
     sss = frame.lighting.copy()
     sss.reshape(-1, 3)[index] = shaded
     return np.maximum(out, 0.0, out=out), sss
