@@ -507,34 +507,26 @@ def _pixel_sums(
                         b_w[1, j] = np.float32(g1)
                         b_w[2, j] = np.float32(g2)
                 # Stage 4: gather and sum, in sample order (a rejected sample reads the
-                # centre: its difference is exactly 0, so it is skipped).
+                # centre: its difference is exactly 0, so it is skipped; a hidden-surface
+                # fill adds its share of the centre's direct light).
                 for j in range(nb):
-                    if not b_ok[j]:
-                        if b_fill[j]:
-                            d0 = f0 * b_w[0, j]
-                            d1 = f1 * b_w[1, j]
-                            d2 = f2 * b_w[2, j]
-                            s0 += np.float64(d0)
-                            s1 += np.float64(d1)
-                            s2 += np.float64(d2)
-                            if want_var:
-                                y = d0 * np.float32(0.2126) + d1 * np.float32(0.7152)
-                                y = y + d2 * np.float32(0.0722)
-                                y64 = np.float64(y)
-                                v0 += y64
-                                v1 += y64 * y64
-                        continue
-                    q = b_q[j]
-                    q8 = np.uint64(q) * _EIGHT
-                    if disk:
-                        gq = fb[_ROW_G + j]
-                        d0 = (texel[q8] * gq - b0) * b_w[0, j]
-                        d1 = (texel[q8 + _ONE] * gq - b1) * b_w[1, j]
-                        d2 = (texel[q8 + _TWO] * gq - b2) * b_w[2, j]
+                    if b_ok[j]:
+                        q8 = np.uint64(b_q[j]) * _EIGHT
+                        if disk:
+                            gq = fb[_ROW_G + j]
+                            d0 = (texel[q8] * gq - b0) * b_w[0, j]
+                            d1 = (texel[q8 + _ONE] * gq - b1) * b_w[1, j]
+                            d2 = (texel[q8 + _TWO] * gq - b2) * b_w[2, j]
+                        else:
+                            d0 = (texel[q8] - b0) * b_w[0, j]
+                            d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
+                            d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
+                    elif b_fill[j]:
+                        d0 = f0 * b_w[0, j]
+                        d1 = f1 * b_w[1, j]
+                        d2 = f2 * b_w[2, j]
                     else:
-                        d0 = (texel[q8] - b0) * b_w[0, j]
-                        d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
-                        d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
+                        continue
                     s0 += np.float64(d0)
                     s1 += np.float64(d1)
                     s2 += np.float64(d2)
