@@ -229,7 +229,10 @@ class Frame:
                 f"the passes ({shape[1]}x{shape[0]})"
             )
         repaired = 0
-        for name in ("lighting", "albedo", "combined"):
+        # The colour passes (the Diffuse Indirect part only when the frame has one):
+        # non-finite and negative values become 0 and count as repaired.
+        optional = ("indirect",) if self.indirect is not None else ()
+        for name in ("lighting", "albedo", "combined", *optional):
             with np.errstate(over="ignore", invalid="ignore"):  # > float32 max: inf, repaired
                 a = _clean(name, getattr(self, name), shape, 3).astype(np.float32, copy=True)
             bad = ~np.isfinite(a) | (a < 0)
@@ -259,13 +262,6 @@ class Frame:
             mv[np.any(bad, axis=-1)] = MAX_MOTION
             mv = np.clip(mv, -MAX_MOTION, MAX_MOTION)
             self.motion = mv.astype(np.float32)
-        if self.indirect is not None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                ind = _clean("indirect", self.indirect, shape, 3).astype(np.float32, copy=True)
-            bad = ~np.isfinite(ind) | (ind < 0)
-            ind[bad] = 0.0
-            repaired += int(np.count_nonzero(bad))
-            self.indirect = ind
         if self.sss_weight is not None:
             sw = np.asarray(_clean("sss_weight", self.sss_weight, shape, None), dtype=np.float32)
             # Out-of-range weights are clipped (a texture may overshoot); NaN means
