@@ -566,7 +566,10 @@ def _numpy_sums(
         if fill_value is not None:
             fill = inside & ~ok
             fill &= ~(zp - zq > np.float32(0.1) * zp)
-            if not fill.any():
+            if fill.any():
+                # (3, n_fill) the filled samples' −(1 − β)·B_direct(p), times a weight below.
+                fill_light = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill]
+            else:
                 fill = None
         if pix.core is None:
             fallback += n - int(np.count_nonzero(ok))
@@ -626,7 +629,7 @@ def _numpy_sums(
                 g_s = np.repeat(pix.g_s[a:b], c)[fill]
                 with np.errstate(divide="ignore", invalid="ignore"):
                     planar *= np.where(norm[fill] > 0, g_s / norm[fill], np.float32(0.0))
-                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * planar
+                diff[:, fill] = fill_light * planar
         elif pix.chrom[a:b].any():
             diff -= centre_rep
             dens = _pdf(profile, r, mat, pix, a, c)
@@ -638,13 +641,13 @@ def _numpy_sums(
             dens *= scale
             diff *= dens
             if fill is not None:
-                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * dens[:, fill]
+                diff[:, fill] = fill_light * dens[:, fill]
         else:  # one profile for all channels: w_c = γ_c exactly
             diff -= centre_rep
             gam = np.repeat(pix.gam[a:b].T, c, axis=1)
             diff *= gam
             if fill is not None:
-                diff[:, fill] = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill] * gam[:, fill]
+                diff[:, fill] = fill_light * gam[:, fill]
         starts = starts.astype(np.intp)
         sums[a:b] = np.add.reduceat(diff, starts, axis=1, dtype=np.float64).T
         if var is not None:
