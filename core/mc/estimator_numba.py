@@ -44,21 +44,23 @@ PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
 #: work to overlap the latencies of the reads, square roots and divisions (8 and 32
 #: measured the same).
 BATCH = 16
-#: Rows of the per-task batch buffer (see pixel_sums): offsets of each value.
-_ROW_R = 0 * BATCH
-_ROW_QX = 1 * BATCH
-_ROW_QY = 2 * BATCH
-_ROW_ZQ = 3 * BATCH
-_ROW_N = 4 * BATCH
-_ROW_G = 5 * BATCH
-_ROW_FX = 6 * BATCH
-_ROW_FY = 7 * BATCH
-_ROW_A = 8 * BATCH
-_ROW_MX = 9 * BATCH
-_ROW_MY = 10 * BATCH
-_ROW_X = 11 * BATCH
-_ROW_S = 12 * BATCH
+#: Rows of the per-task batch buffer (see pixel_sums): each value's offset in it.
 _ROWS = 13
+(
+    _ROW_R,
+    _ROW_QX,
+    _ROW_QY,
+    _ROW_ZQ,
+    _ROW_N,
+    _ROW_G,
+    _ROW_FX,
+    _ROW_FY,
+    _ROW_A,
+    _ROW_MX,
+    _ROW_MY,
+    _ROW_X,
+    _ROW_S,
+) = range(0, _ROWS * BATCH, BATCH)
 #: Pixels per parallel task (one set of batch buffers each).
 PIXELS_PER_TASK = 64
 _M32 = np.uint64(0xFFFFFFFF)
