@@ -22,6 +22,10 @@ BACKGROUND_DEPTH = 1e9
 #: Motion vectors are clipped to ±this many pixels (far beyond any image).
 MAX_MOTION = 1e7
 
+#: Object indices are clipped to [0, this] (the compiled kernel keeps slot and object
+#: in one float32, exact below 2**24).
+MAX_OBJECTS = 2**15
+
 
 @dataclass(frozen=True)
 class MaterialSpec:
@@ -137,6 +141,7 @@ PIXEL_PASSES = (
     "motion",
     "sss_weight",
     "indirect",
+    "objects",
 )
 
 
@@ -171,7 +176,7 @@ class Frame:
     repaired : int
         Input values replaced because unusable: non-finite or negative
         lighting, albedo and combined values (-> 0), NaN depths
-        (-> background), non-finite material indices (-> 0, no SSS) and
+        (-> background), non-finite material and object indices (-> 0; no SSS) and
         motion vectors (-> off screen: the pixel's history is dropped).
     lighting_passes : tuple of str
         Passes summed into B (e.g. Diffuse Direct, Diffuse Indirect).
@@ -187,6 +192,11 @@ class Frame:
         The Diffuse Indirect part of ``lighting`` (linear; non-finite and
         negative values -> 0). The rest is direct light, which the hidden-light
         prior scales (SSSParams.hidden_light). None: all of B is direct.
+    objects : (H, W) int32 or None
+        Object Index pass: which object each pixel sees (0: the background or an
+        object the pass render did not number). Cycles never scatters light from
+        one object into another, so neither do the samples (SSSParams.contact).
+        None: unknown (a pixel's object is taken to be its material's).
     """
 
     number: int
@@ -204,6 +214,7 @@ class Frame:
     sss_weight: np.ndarray | None = None
     crop: Crop | None = None
     indirect: np.ndarray | None = None
+    objects: np.ndarray | None = None
 
     def map_pixels(self, fn, **changes) -> Frame:
         """A copy with ``fn`` applied to every per-pixel pass (:data:`PIXEL_PASSES`).
@@ -262,6 +273,11 @@ class Frame:
             mv[np.any(bad, axis=-1)] = MAX_MOTION
             mv = np.clip(mv, -MAX_MOTION, MAX_MOTION)
             self.motion = mv.astype(np.float32)
+        if self.objects is not None:
+            ob = np.asarray(_clean("objects", self.objects, shape, None), dtype=np.float64)
+            repaired += int(np.count_nonzero(~np.isfinite(ob)))
+            ob = np.nan_to_num(ob, nan=0.0, posinf=0.0, neginf=0.0)
+            self.objects = np.clip(np.rint(ob), 0, MAX_OBJECTS).astype(np.int32)
         if self.sss_weight is not None:
             sw = np.asarray(_clean("sss_weight", self.sss_weight, shape, None), dtype=np.float32)
             # Out-of-range weights are clipped (a texture may overshoot); NaN means

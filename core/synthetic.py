@@ -227,6 +227,9 @@ def scene_frame(
     albedo[material == 1] = SKIN["albedo"]
     albedo[material == 2] = MARBLE["albedo"]
     depth[material == 0] = 4.0
+    # One object per material, the wall last (Blender's Object Index pass): they
+    # stand well apart in depth, so none touches another.
+    objects = np.where(material > 0, material, material.max() + 1).astype(np.int32)
     return Frame(
         number=number,
         lighting=b.astype(np.float32),
@@ -236,6 +239,7 @@ def scene_frame(
         material=material,
         camera=cam,
         materials=_materials() if coverage is None else {1: _materials()[1]},
+        objects=objects,
     )
 
 

@@ -63,6 +63,7 @@ _PASS_ALIASES: dict[str, tuple[str, ...]] = {
     "Diffuse Indirect": ("Diffuse Indirect", "DiffInd"),
     "Diffuse Color": ("Diffuse Color", "DiffCol"),
     "Material Index": ("Material Index", "IndexMA"),
+    "Object Index": ("Object Index", "IndexOB"),
     "Vector": ("Vector",),
     # Value AOV the pass render writes where a material's Subsurface Weight is linked.
     "SSS Weight": ("cvsss_weight",),
@@ -79,6 +80,7 @@ _PASS_CHANNELS: dict[str, tuple[str, ...]] = {
     "Diffuse Indirect": ("R", "G", "B"),
     "Diffuse Color": ("R", "G", "B"),
     "Material Index": ("X",),
+    "Object Index": ("X",),
     "Vector": ("X", "Y", "Z", "W"),
     "SSS Weight": ("X",),
 }
@@ -396,7 +398,8 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         present (:func:`motion_from_vector`), else None; ``sss_weight`` from the
         value AOV ``cvsss_weight`` on the pixels of materials whose sidecar
         entry says ``"weight_linked": true`` (NaN elsewhere), else None;
-        ``indirect`` = Diffuse Indirect when present, else None. The
+        ``indirect`` = Diffuse Indirect when present, else None;
+        ``objects`` = Object Index when present, else None. The
         frame also gets an attribute ``lighting_passes``: the tuple of passes
         summed into B. float16 channels are read as float32.
 
@@ -470,6 +473,7 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
             source=name,
             sss_weight=sss_weight,
             indirect=arrays.get("Diffuse Indirect"),
+            objects=arrays.get("Object Index"),
         )
     except ValueError as exc:
         raise PassError(f"{name}: {exc}") from None
@@ -624,6 +628,7 @@ def write_passes(
 
     One part per pass under view layer ``ViewLayer``: Combined (RGB, A = 1),
     Depth (Z; background written as 1e10), Material Index (X, as float),
+    Object Index (X, when ``frame.objects`` is set),
     Diffuse Direct and Indirect (``frame.lighting`` split by ``frame.indirect``;
     all direct when it is None),
     Diffuse Color (= ``frame.albedo``) and, when ``frame.motion`` is set,
@@ -665,6 +670,8 @@ def write_passes(
         vector = vector_from_motion(frame.motion)
         passes["Vector"] = {c: vector[..., i] for i, c in enumerate("XYZW")}
     passes["Material Index"] = {"X": frame.material.astype(np.float32)}
+    if frame.objects is not None:
+        passes["Object Index"] = {"X": frame.objects.astype(np.float32)}
     if frame.indirect is None:
         direct, indirect = frame.lighting, np.zeros_like(frame.lighting)
     else:

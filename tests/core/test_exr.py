@@ -275,6 +275,26 @@ def test_indirect_round_trip_and_the_direct_part(tmp_path):
     np.testing.assert_allclose(geom.direct, np.maximum(expected, 0.0), atol=1e-7)
 
 
+def test_object_index_is_optional_and_round_trips(tmp_path):
+    """The Object Index pass (Blender 5 name or the old IndexOB) becomes frame.objects;
+    without it frame.objects is None; write_passes writes it back; NaN reads as 0."""
+    write_raw(tmp_path / "0001.exr", blender_passes())
+    assert read_frame(tmp_path / "0001.exr").objects is None
+    passes = blender_passes()
+    ids = np.array([[1, 1, 2, 2, 0]] * 3 + [[3, 3, 3, np.nan, 0]], np.float32)
+    passes["Object Index"] = {"X": ids}
+    write_raw(tmp_path / "0002.exr", passes)
+    frame = read_frame(tmp_path / "0002.exr")
+    np.testing.assert_array_equal(frame.objects, np.nan_to_num(ids).astype(np.int32))
+    assert frame.objects.dtype == np.int32 and frame.repaired == 1
+    write_passes(tmp_path / "out" / "0002.exr", frame)
+    np.testing.assert_array_equal(read_frame(tmp_path / "out" / "0002.exr").objects, frame.objects)
+    old = blender_passes(names={"Material Index": "IndexMA"})
+    old["IndexOB"] = {"X": ids}
+    write_raw(tmp_path / "0003.exr", old, layer="RenderLayer", multipart=False)
+    np.testing.assert_array_equal(read_frame(tmp_path / "0003.exr").objects, frame.objects)
+
+
 def test_lighting_sums_direct_and_indirect(tmp_path):
     write_raw(tmp_path / "0001.exr", blender_passes())
     frame = read_frame(tmp_path / "0001.exr")
