@@ -241,6 +241,8 @@ class Geometry:
     direct : (P, 3) float32 or None, the direct part of B (lighting minus the
         frame's indirect pass, ≥ 0; all of B without one)
     surface : Surface or None, for surface-distance weights (None: planar radius)
+    objects : (H·W,) int32 or None, the Object Index pass of every pixel (None: the
+        frame has none; every pixel counts as one object)
     origin : (y, x), image coordinates of the frame's pixel (0, 0) (a crop's origin)
     image : (H, W) of the whole image, or None (the frame is the whole image)
     core : (P,) bool or None, the pixels inside a crop's core (None: all): the
@@ -265,6 +267,7 @@ class Geometry:
     weight: np.ndarray | None = None
     direct: np.ndarray | None = None
     surface: Surface | None = None
+    objects: np.ndarray | None = None
     origin: tuple[int, int] = (0, 0)
     image: tuple[int, int] | None = None
     core: np.ndarray | None = None
@@ -440,6 +443,7 @@ def prepare(
         weight=weight,
         direct=direct.astype(np.float32, copy=False),
         surface=surface(frame, backend) if surface_distance and index.size else None,
+        objects=None if frame.objects is None else frame.objects.reshape(-1),
         origin=frame.origin,
         image=None if frame.crop is None else frame.image_shape,
         core=core,

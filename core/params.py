@@ -410,6 +410,21 @@ class SSSParams(_Params):
         hi=1.0,
         advanced=True,
     )
+    contact: float = param(
+        0.5,
+        label="Contact Height",
+        help="With the Object Index pass: a sample never takes light from another object "
+        "(Cycles does not scatter between objects), and one that lands on another object "
+        "within contact·r of the pixel's tangent plane (r the sample's radius) counts as the "
+        "pixel's surface continuing under that object, where it touches it: unlit, as at "
+        "the foot of a block resting on a table. 0 leaves such samples at the pixel's own "
+        "light",
+        unit="fraction of the sample radius",
+        lo=0.0,
+        ui_hi=1e6,
+        soft=(0.0, 2.0),
+        advanced=True,
+    )
     temporal_mode: str = param(
         "multiplicative",
         label="Temporal Mode",

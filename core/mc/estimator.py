@@ -67,6 +67,24 @@ pixel's view ray). The second test keeps the samples of steep surfaces (a
 table top seen at 75°, whose depth changes by 3.7·r over a radius r) that a
 fixed slope would reject, without admitting a surface behind.
 
+Objects
+-------
+Cycles' disk probes hit the entry point's own object only: light never
+scatters from one object into another, even of the same material (a marble
+block on a marble table top). With the frame's Object Index pass
+(``geom.objects``) a sample on another object falls back like one on another
+material. One that lands on another object within ``contact·r`` of the
+centre's tangent plane (the height ``|n·(x_q − x_p)|`` of its point above the
+plane; the depth difference without normals) marks where the centre's surface
+runs on under an object that rests on it — the table top beneath the block,
+the block's foot on the table — and that surface is unlit: the sample counts
+light 0 at its point of the tangent plane (the plane's depth along the
+sample's ray, the centre's area element scaled by the squared depth ratio,
+G = 1), weighed as an accepted sample. On a plane, this is exactly the
+estimator over one surface whose part under the other object is dark
+(tests/core/test_estimator.py). Without the pass every pixel counts as one
+object and nothing changes.
+
 Work is compacted: only pixels with m > 0 are visited, their samples are laid
 out contiguously, processed in batches small enough to stay in the CPU's
 cache, and summed back per pixel in sample order. Cost is proportional to
@@ -318,6 +336,7 @@ def estimate_distant(
     backend: str = "numpy",
     disk: bool = False,
     hidden_light: float = 1.0,
+    contact: float = 0.0,
 ) -> DistantEstimate:
     """Estimate Î for every SSS pixel with the given per-pixel sample counts.
 
@@ -340,6 +359,9 @@ def estimate_distant(
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
         a sample counts with when it lands on the background or another material
         nearer than an occluder (the hidden surface; module doc); 1: the centre's light
+    contact : float >= 0, with ``geom.objects``: a sample on another object within
+        ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
+        continuing under it (module doc, *Objects*); 0: no such samples
 
     Returns
     -------
@@ -376,6 +398,7 @@ def estimate_distant(
             variance,
             disk,
             hidden_light,
+            contact,
         )
     else:
         pix = active_pixels(geom, profile, counts, active, frame, seed)
@@ -390,6 +413,7 @@ def estimate_distant(
             chunk_samples,
             disk,
             hidden_light,
+            contact,
         )
     if active.size == geom.size:
         distant += sums / act_counts[:, None]
@@ -418,6 +442,7 @@ def _numpy_sums(
     chunk_samples: int,
     disk: bool = False,
     hidden_light: float = 1.0,
+    contact: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray | None, int]:
     """Per active pixel Σ_k w_c·(B_c(q_k) − B_c(p)), luminance sums and fall-backs (NumPy).
 
@@ -462,6 +487,8 @@ def _numpy_sums(
     fill_value = None
     if hidden_light < 1.0 and pix.direct is not None:
         fill_value = np.float32(-(1.0 - hidden_light)) * pix.direct.T
+    objects = geom.objects
+    touch = np.float32(contact) if objects is not None and contact > 0 else None
     for a, b in _chunks(pix.counts, chunk_samples):
         c = pix.counts[a:b]
         n = int(c.sum())
@@ -559,18 +586,35 @@ def _numpy_sums(
                 e -= np.float32(1.0)
                 near |= (w_pl > 0) & (np.abs(e) <= tol * w_pl)
         ok &= near
+        # Objects: light never passes from one object to another. A sample on another
+        # object close to the centre's tangent plane is the centre's surface running
+        # under it where the two touch: unlit (module doc, *Objects*).
+        touching = None
+        if objects is not None:
+            other = np.take(objects, q) != np.repeat(np.take(objects, pix.idx[a:b]), c)
+            other &= inside
+            ok &= ~other
+            if touch is not None:
+                touching = _touching(other, qx, qy, zq, px, py, zp, r, touch, pix, surf, a, c)
+                if not touching.any():
+                    touching = None
         # Hidden surface: a rejected sample on the image that landed on the background or
         # another material (not in front of the centre, an occluder) counts with the
         # centre's light less (1 − β) of its direct part, at its planar weight.
         fill = None
         if fill_value is not None:
             fill = inside & ~ok
+            if touching is not None:
+                fill &= ~touching
             fill &= ~(zp - zq > np.float32(0.1) * zp)
             if fill.any():
                 # (3, n_fill) the filled samples' −(1 − β)·B_direct(p), times a weight below.
                 fill_light = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill]
             else:
                 fill = None
+        if touching is not None:
+            # Weighed as accepted samples at their point of the centre's tangent plane.
+            ok |= touching
         if pix.core is None:
             fallback += n - int(np.count_nonzero(ok))
         else:
@@ -580,6 +624,8 @@ def _numpy_sums(
         diff = np.empty((3, n), np.float32)
         for ci in range(3):
             np.take(light_cm[ci], q, out=diff[ci])
+        if touching is not None:
+            diff[:, touching] = np.float32(0.0)
         centre_rep = np.repeat(centre_light[:, a:b], c, axis=1)
 
         if surf is not None:
@@ -588,6 +634,9 @@ def _numpy_sums(
             # against the centre's; the profile at that distance over the profile
             # at r (R = pdf/(2πr)) times the area Jacobian.
             zq = np.where(ok, zq, zp)
+            area_q = np.take(surf.area, q)
+            if touching is not None:
+                zq, area_q = _on_plane(touching, zq, area_q, qx, qy, zp, pix, surf, a, c)
             dx, dy = _offset(qx, qy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
             if surf.ortho:
                 plane = np.repeat(pix.fwfh[a:b], c)
@@ -611,12 +660,14 @@ def _numpy_sums(
                 # lies in the plane and G = 1.
                 ex, ey = _offset(fx, fy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
                 gain = _disk_gain(ex, ey, dz, q, surf.normal, pix, a, c)
+                if touching is not None:
+                    gain[touching] = np.float32(1.0)  # on the centre's plane: G = 1
                 diff *= np.where(ok, gain, np.float32(1.0))
             diff -= centre_rep
             # w_c = Σγ·pdf_c(dist)/Σ_c' pdf_c'(r) · (r/dist) · area_q/plane
             scale = np.repeat(pix.g_s[a:b], c)
             scale *= r
-            scale *= np.take(surf.area, q)
+            scale *= area_q
             dist *= norm
             dist *= plane
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -658,6 +709,52 @@ def _numpy_sums(
             y64 *= y64
             var[a:b, 1] = np.add.reduceat(y64, starts)
     return sums, var, fallback
+
+
+def _touching(other, qx, qy, zq, px, py, zp, r, touch, pix: Pixels, surf, a: int, c):
+    """(n,) bool: samples on ``other`` objects within ``touch·r`` of the centre's tangent plane.
+
+    The height of the landing point above the plane through x_p with the centre's
+    normal, ``|n·(x_q − x_p)|``; without normals (planar weights) the plane faces
+    the camera and the height is the depth difference.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        dz = zq - zp
+        if pix.frame is None:
+            h = np.abs(dz)
+        else:
+            unit_x, unit_y = (np.float32(v) for v in surf.unit)
+            cx, cy = (np.float32(v) for v in surf.centre)
+            dx, dy = _offset(qx, qy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
+            f = pix.frame[a : a + c.size]
+            h = dx * np.repeat(f[:, 0], c)
+            h += dy * np.repeat(f[:, 1], c)
+            h += dz * np.repeat(f[:, 2], c)
+            h = np.abs(h)
+        return other & (h <= touch * r)
+
+
+def _on_plane(touching, zq, area_q, qx, qy, zp, pix: Pixels, surf, a: int, c):
+    """Depth and area element of the touching samples' points on the centre's tangent plane.
+
+    The plane's depth along the sample's own ray (its continuous screen position;
+    the centre's depth where the pixel has no plane) and the centre's area element,
+    scaled by (depth ratio)² in perspective (the plane has the centre's normal).
+    """
+    w = np.repeat(pix.plane[a : a + c.size, 0], c) * qx
+    w += np.repeat(pix.plane[a : a + c.size, 1], c) * qy
+    w += np.repeat(pix.plane[a : a + c.size, 2], c)
+    area_p = np.repeat(np.take(surf.area, pix.idx[a : a + c.size]), c)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if surf.ortho:
+            zh = np.where(np.isfinite(w), w, zp)
+            area_h = area_p
+        else:
+            zh = np.where(w > 0, np.float32(1.0) / w, zp)
+            ratio = zh / zp
+            area_h = area_p * ratio
+            area_h *= ratio
+    return np.where(touching, zh, zq), np.where(touching, area_h, area_q)
 
 
 def tangent_planes(surf, normal, x, y, depth) -> np.ndarray:

@@ -136,6 +136,9 @@ def _pixel_sums(
     disk,
     hidden,
     direct,
+    use_obj,
+    inv_k,
+    touch,
     w,
     h,
     full_w,
@@ -172,7 +175,8 @@ def _pixel_sums(
     seed_z : uint64, ``frame ^ seed`` (the hash's third word)
     dtab : (K, 3) float64, Burley d per slot (scene units)
     texel : (8N,) float32, per pixel B (3 channels), depth, surface area carrying the
-        sign of the normal's z, compact slot (exact in float32) and the normal's x
+        sign of the normal's z, compact slot (plus K times the object with ``use_obj``;
+        exact in float32) and the normal's x
         and y (z = ±√(1 − x² − y²)): 32 bytes, so a sample's reads share one cache line
     rtab : (2(S + 1),) float32, radius table (flat); trunc : float32, truncation in d
     dirs : (2·2**DIRECTION_BITS,) float32, direction table (flat)
@@ -185,6 +189,10 @@ def _pixel_sums(
     hidden : float32, the hidden-light share β (< 1: rejected samples on the background
         or another material count −(1 − β)·B_direct(p) at their planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
+    use_obj : bool, the texels' slot carries the object (``slot + K·object``):
+        a sample on another object is rejected (or, within ``touch·r`` of the
+        centre's tangent plane, counts unlit at its point of that plane)
+    inv_k : float32, 1/K (a power of two); touch : float32, SSSParams.contact (0: off)
     w, h : int, frame (crop) size; full_w, full_h : float32, image size
     ox, oy : int, crop origin; slope : float32, depth slope
     mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera;
@@ -221,6 +229,7 @@ def _pixel_sums(
         b_q = np.empty(BATCH, np.int64)
         b_ok = np.empty(BATCH, np.bool_)
         b_fill = np.empty(BATCH, np.bool_)
+        b_touch = np.empty(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
         t_a = np.empty(3, np.float32)
         idch = np.empty(3, np.float32)
@@ -230,7 +239,6 @@ def _pixel_sums(
             g = active[i]
             m = counts[g]
             mat = gmat[g]
-            fmat = np.float32(mat)
             centre = gindex[g]
             hxi, hyi = _pcg3d_xy(np.uint64(gx[g]) & _M32, np.uint64(gy[g]) & _M32, seed_z)
             # The pixel's channel edges and tail maps (as active_pixels).
@@ -320,6 +328,11 @@ def _pixel_sums(
             b0 = texel[c8]
             b1 = texel[c8 + _ONE]
             b2 = texel[c8 + _TWO]
+            # The centre's slot (and object): a sample is accepted on the same key only.
+            key = texel[c8 + _FIVE]
+            obj = np.floor(key * inv_k)
+            area_p = abs(texel[c8 + _FOUR])
+            use_touch = use_obj and touch > zero
             use_fill = hidden < one
             f0 = np.float32(-(one - hidden)) * direct[g, 0]
             f1 = np.float32(-(one - hidden)) * direct[g, 1]
@@ -374,6 +387,8 @@ def _pixel_sums(
                     inside = ok
                     q = centre
                     zq = zp
+                    touching = False
+                    area_t = zero
                     if ok:
                         q = iy * w + ix
                         q8 = np.uint64(q) * _EIGHT
@@ -388,9 +403,39 @@ def _pixel_sums(
                         else:
                             on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
                         near = near | (use_plane & on_plane)
-                        ok = (texel[q8 + _FIVE] == fmat) & near
+                        kq = texel[q8 + _FIVE]
+                        ok = (kq == key) & near
+                        if use_touch and not ok and np.floor(kq * inv_k) != obj:
+                            # Another object: does it touch the centre's tangent plane?
+                            dz = zq - zp
+                            if mode == PLANAR:
+                                hq = abs(dz)
+                            else:
+                                qx = fb[_ROW_QX + j]
+                                qy = fb[_ROW_QY + j]
+                                if mode == ORTHO:
+                                    dx = (qx - px) * unit_x
+                                    dy = (qy - py) * unit_y
+                                else:
+                                    dx = ((qx - cx) * zq - (px - cx) * zp) * unit_x
+                                    dy = ((qy - cy) * zq - (py - cy) * zp) * unit_y
+                                hq = abs(dx * nx + dy * ny + dz * nz)
+                            touching = hq <= touch * fb[_ROW_R + j]
                     fill = False
-                    if not ok:
+                    if touching:
+                        # Unlit, at its point of the centre's tangent plane (the plane's
+                        # depth along the sample's ray, the centre's area element).
+                        ok = True
+                        if mode != PLANAR:
+                            wq = pa * fb[_ROW_QX + j] + pb * fb[_ROW_QY + j] + pc
+                            if mode == ORTHO:
+                                zq = wq if np.isfinite(wq) else zp
+                                area_t = area_p
+                            else:
+                                zq = one / wq if wq > zero else zp
+                                ratio = zq / zp
+                                area_t = area_p * ratio * ratio
+                    elif not ok:
                         # Hidden surface: on the image, not in front of the centre.
                         fill = use_fill and inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
@@ -399,13 +444,14 @@ def _pixel_sums(
                             nfb += 1
                     b_fill[j] = fill
                     b_ok[j] = ok
+                    b_touch[j] = touching
                     b_q[j] = q
                     fb[_ROW_ZQ + j] = zq
                     if use_plane:
                         # The landing texel's area and normal (the centre's when rejected),
                         # for stage 3's branch-free arithmetic.
                         q8 = np.uint64(q) * _EIGHT
-                        fb[_ROW_A + j] = texel[q8 + _FOUR]
+                        fb[_ROW_A + j] = area_t if touching else texel[q8 + _FOUR]
                         fb[_ROW_MX + j] = texel[q8 + _SIX]
                         fb[_ROW_MY + j] = texel[q8 + _SEVEN]
                     fb[_ROW_FX + j] = fx
@@ -481,7 +527,8 @@ def _pixel_sums(
                         ok = b_ok[j]
                         fb[_ROW_X + j] = dist if ok else r
                         fb[_ROW_S + j] = scale if ok else fscale
-                        fb[_ROW_G + j] = gq
+                        # On the centre's tangent plane G = 1.
+                        fb[_ROW_G + j] = one if b_touch[j] else gq
                 for j in range(nb):
                     if not (b_ok[j] or b_fill[j]):
                         continue
@@ -514,15 +561,20 @@ def _pixel_sums(
                 for j in range(nb):
                     if b_ok[j]:
                         q8 = np.uint64(b_q[j]) * _EIGHT
+                        l0 = texel[q8]
+                        l1 = texel[q8 + _ONE]
+                        l2 = texel[q8 + _TWO]
+                        if b_touch[j]:  # unlit
+                            l0 = l1 = l2 = zero
                         if disk:
                             gq = fb[_ROW_G + j]
-                            d0 = (texel[q8] * gq - b0) * b_w[0, j]
-                            d1 = (texel[q8 + _ONE] * gq - b1) * b_w[1, j]
-                            d2 = (texel[q8 + _TWO] * gq - b2) * b_w[2, j]
+                            d0 = (l0 * gq - b0) * b_w[0, j]
+                            d1 = (l1 * gq - b1) * b_w[1, j]
+                            d2 = (l2 * gq - b2) * b_w[2, j]
                         else:
-                            d0 = (texel[q8] - b0) * b_w[0, j]
-                            d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
-                            d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
+                            d0 = (l0 - b0) * b_w[0, j]
+                            d1 = (l1 - b1) * b_w[1, j]
+                            d2 = (l2 - b2) * b_w[2, j]
                     elif b_fill[j]:
                         d0 = f0 * b_w[0, j]
                         d1 = f1 * b_w[1, j]
@@ -587,6 +639,28 @@ def _texels(light, depth, area, normal, slots, surface):
     return out
 
 
+#: Largest integer float32 holds exactly: the texels' slot-and-object keys stay below it.
+_EXACT = 1 << 24
+
+
+def surface_keys(slots: np.ndarray, objects: np.ndarray | None) -> tuple[np.ndarray, np.float32]:
+    """(H·W,) int32 texel keys ``slot + K·object`` and ``1/K`` (K a power of two > slots).
+
+    Two pixels have one key when they show the same material of the same object;
+    ``floor(key/K)`` gives the object back. Without an Object Index pass the key is
+    the slot. Object indices too large for float32 keys are renumbered by rank (only
+    their equality matters).
+    """
+    slots = slots.astype(np.int32, copy=False)
+    if objects is None:
+        return slots, np.float32(1.0)
+    k = 1 << max(int(slots.max(initial=0)).bit_length(), 1)
+    top = int(objects.max(initial=0))
+    if (top + 1) * k > _EXACT:
+        objects = np.unique(objects, return_inverse=True)[1].reshape(objects.shape)
+    return (slots + k * objects.astype(np.int32)).astype(np.int32), np.float32(1.0 / k)
+
+
 def kernel(samples: int):
     """The compiled kernel for a call taking ``samples`` samples (serial below a threshold)."""
     return pixel_sums if samples >= PARALLEL_MIN_SAMPLES else pixel_sums_serial
@@ -605,6 +679,7 @@ def run_kernel(
     variance,
     disk=False,
     hidden_light=1.0,
+    contact=0.0,
 ):
     """Per-pixel sums of the ``active`` SSS pixels of ``geom`` with the compiled kernel.
 
@@ -622,12 +697,13 @@ def run_kernel(
         mode = ORTHO if surf.ortho else PERSPECTIVE
         unit, centre, area = surf.unit, surf.centre, surf.area
     normal = surf.normal if surf is not None else np.zeros((1, 3), f32)
+    keys, inv_k = surface_keys(geom.slots, geom.objects)
     texel = _texels(
         np.ascontiguousarray(lighting.reshape(-1, 3), dtype=f32),
         np.ascontiguousarray(depth.reshape(-1), dtype=f32),
         np.ascontiguousarray(area, dtype=f32),
         normal,
-        geom.slots.astype(np.int32, copy=False),
+        keys,
         surf is not None,
     )
     first = active[0]
@@ -661,6 +737,9 @@ def run_kernel(
         bool(disk),
         f32(hidden_light),
         geom.direct if geom.direct is not None else np.zeros((geom.size, 3), f32),
+        geom.objects is not None,
+        inv_k,
+        f32(contact),
         w,
         h,
         f32(full_w),
@@ -726,6 +805,9 @@ def _warm(fn) -> None:
         False,
         f32(1.0),
         np.zeros((1, 3), f32),
+        False,
+        f32(1.0),
+        f32(0.0),
         1,
         1,
         f32(1.0),

@@ -155,6 +155,7 @@ class MonteCarloProcessor:
             backend=p.backend,
             disk=p.distance == "cycles",
             hidden_light=p.hidden_light,
+            contact=p.contact,
         )
         pass_ms = (time.perf_counter() - t0) * 1e3
 

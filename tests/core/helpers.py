@@ -11,7 +11,18 @@ from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import frame_profile
 
 
-def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk=False, hidden=1.0):
+def shade(
+    frame,
+    counts,
+    profile=None,
+    *,
+    seed=0,
+    slope=2.0,
+    surface=False,
+    disk=False,
+    hidden=1.0,
+    contact=0.0,
+):
     """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
 
     Parameters
@@ -23,6 +34,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk
     surface : weigh samples by the surface distance (SSSParams.distance)
     disk : with ``surface``, weigh them with Cycles' disk kernel (distance "cycles")
     hidden : SSSParams.hidden_light
+    contact : SSSParams.contact (with the frame's Object Index pass)
 
     Returns
     -------
@@ -44,6 +56,7 @@ def shade(frame, counts, profile=None, *, seed=0, slope=2.0, surface=False, disk
         depth_slope=slope,
         disk=disk,
         hidden_light=hidden,
+        contact=contact,
     )
     b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     return geom, est, (1 - geom.gamma) * b + est.distant

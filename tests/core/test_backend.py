@@ -150,6 +150,65 @@ def test_estimate_with_variance_fast_inverse_and_a_chromatic_profile(inverse, di
     np.testing.assert_allclose(b.variance[fin], a.variance[fin], rtol=1e-3, atol=1e-12)
 
 
+def _object_frames():
+    """Frames whose objects share a material and touch: the synthetic scene with its slab
+    cut into two objects, and a tilted plane seen by an ortho camera, cut in two."""
+    frame = scene_frame("flash", 2, 160, 90)
+    objects = frame.objects.copy()
+    objects[(frame.material == 2) & (np.arange(160)[None, :] > 110)] = 9
+    plane = flat_plane(48, 32, d=(0.02, 0.01, 0.005), depth=2.0)
+    yy, xx = np.mgrid[0:32, 0:48]
+    tilted = (2.0 + 0.05 * xx + 0.002 * yy * yy).astype(np.float32)
+    ortho = Camera(**{**dataclasses.asdict(plane.camera), "type": "ORTHO", "ortho_scale": 1.5})
+    light = (1.2 + np.sin(0.4 * xx + 0.3 * yy))[..., None] * np.array([1.0, 0.8, 0.6])
+    return {
+        "perspective": dataclasses.replace(frame, objects=objects),
+        "ortho": dataclasses.replace(
+            plane,
+            camera=ortho,
+            depth=tilted,
+            lighting=light.astype(np.float32),
+            objects=np.where(xx < 20, 4, 5).astype(np.int32),
+        ),
+    }
+
+
+@pytest.mark.parametrize("hidden", [1.0, 0.5])
+@pytest.mark.parametrize("distance", ["surface", "cycles", "planar"])
+@pytest.mark.parametrize("case", ["perspective", "ortho"])
+def test_objects_and_contacts_take_the_same_samples(case, distance, hidden):
+    """The Object Index pass on both backends: samples on another object rejected, those
+    touching the centre's tangent plane taken unlit (SSSParams.contact), with the
+    hidden-light fill beside them."""
+    frame = _object_frames()[case]
+    profile = frame_profile(frame, SSSParams())
+    geom = prepare(frame, profile, surface_distance=distance != "planar")
+    counts = (np.arange(geom.size) % 29).astype(np.int32)
+    kw = dict(frame=2, seed=5, depth_slope=2.0, disk=distance == "cycles", hidden_light=hidden)
+    out = {}
+    for contact in (0.0, 0.5):
+        a = estimate_distant(
+            geom, frame.lighting, frame.depth, profile, counts, contact=contact, **kw
+        )
+        b = estimate_distant(
+            geom,
+            frame.lighting,
+            frame.depth,
+            profile,
+            counts,
+            contact=contact,
+            backend="numba",
+            **kw,
+        )
+        assert (a.samples, a.fallback) == (b.samples, b.fallback)
+        scale = np.abs(a.distant).max()
+        np.testing.assert_allclose(b.distant, a.distant, rtol=0, atol=RTOL * scale)
+        out[contact] = a
+    # Some samples touched the other object (taken, not fallen back), changing the estimate.
+    assert out[0.5].fallback < out[0.0].fallback
+    assert not np.array_equal(out[0.5].distant, out[0.0].distant)
+
+
 @pytest.mark.parametrize("distance", ["surface", "cycles", "planar"])
 @pytest.mark.parametrize("d", [(0.02, 0.01, 0.005), (0.01, 0.01, 0.01)], ids=["rgb", "grey"])
 def test_orthographic_camera_and_constant_lighting(d, distance):

@@ -151,3 +151,72 @@ def test_offsets_far_beyond_the_image_fall_back_without_warnings(d):
     assert est.fallback == est.samples > 0  # every sample lands off screen
     assert np.isfinite(shaded).all()
     assert np.allclose(shaded, frame.lighting.reshape(-1, 3), atol=1e-6)
+
+
+# -- objects (the Object Index pass) ------------------------------------------------------
+KERNELS = {"planar": {}, "surface": {"surface": True}, "cycles": {"surface": True, "disk": True}}
+
+
+def two_objects(right_light: float = 0.2, right_depth: float = 2.0):
+    """A fronto-parallel plane of one material at 2 m: the left half is object 1, lit at 1,
+    the right half object 2, lit at ``right_light`` and at ``right_depth``."""
+    x = np.arange(64)[None, :, None]
+    light = np.broadcast_to(np.where(x < 32, 1.0, right_light), (48, 64, 3)).astype(np.float32)
+    frame = flat_plane(d=CHROMATIC, lighting=light)
+    depth = frame.depth.copy()
+    depth[:, 32:] = right_depth
+    objects = np.broadcast_to(np.where(x[..., 0] < 32, 1, 2), (48, 64)).astype(np.int32)
+    return dataclasses.replace(frame, depth=depth, objects=objects)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_no_light_passes_from_one_object_to_another(kernel):
+    """Cycles scatters within one object: with the Object Index pass each half keeps its
+    own light exactly (samples that land on the other object fall back); without it, two
+    objects of one material at one depth are one surface and light crosses."""
+    frame = two_objects()
+    geom, est, apart = shade(frame, 64, **KERNELS[kernel])
+    left = geom.x < 32
+    np.testing.assert_allclose(apart[left], 1.0, rtol=2e-6)
+    np.testing.assert_allclose(apart[~left], 0.2, rtol=2e-6)
+    assert est.fallback > 0
+    _, _, joined = shade(dataclasses.replace(frame, objects=None), 64, **KERNELS[kernel])
+    red = joined[:, 0]  # the widest channel (d = 2 cm, 2.7 px)
+    assert red[left & (geom.x >= 30)].max() < 0.97
+    assert red[~left & (geom.x <= 33)].min() > 0.23
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_a_touching_object_covers_unlit_surface(kernel):
+    """SSSParams.contact: a sample on another object at the height of the centre's tangent
+    plane (here the same plane) counts as the centre's surface running on under that
+    object, unlit: object 1 gets what one surface whose right half is unlit gives
+    (the same samples; planar weights exactly, plane-point weights to float rounding)."""
+    frame = two_objects()
+    geom, est, touched = shade(frame, 64, contact=0.5, **KERNELS[kernel])
+    unlit = frame.lighting.copy()
+    unlit[:, 32:] = 0.0
+    dark = dataclasses.replace(frame, objects=None, lighting=unlit)
+    _, ref, expected = shade(dark, 64, **KERNELS[kernel])
+    left = geom.x < 32
+    if kernel == "planar":
+        np.testing.assert_array_equal(touched[left], expected[left])
+    else:
+        np.testing.assert_allclose(touched[left], expected[left], rtol=2e-5, atol=1e-7)
+    # Darker towards the contact, untouched far from it, never negative.
+    assert touched[left & (geom.x == 31), 0].max() < 0.9
+    np.testing.assert_allclose(touched[left & (geom.x < 8)], 1.0, rtol=2e-6)
+    assert touched.min() >= 0.0
+    # Touching samples are taken, not fallbacks: object 1 falls back less than with contact 0.
+    _, apart, _ = shade(frame, 64, **KERNELS[kernel])
+    assert est.fallback < apart.fallback
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_an_object_off_the_plane_is_not_touching(kernel):
+    """Object 2 0.4 m in front of object 1's plane (far above contact·r): its samples
+    fall back as with contact 0."""
+    frame = two_objects(right_depth=1.6)
+    _, _, a = shade(frame, 64, contact=0.5, **KERNELS[kernel])
+    _, _, b = shade(frame, 64, contact=0.0, **KERNELS[kernel])
+    np.testing.assert_array_equal(a, b)

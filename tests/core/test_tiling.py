@@ -114,6 +114,25 @@ def test_tiles_equal_whole_image(name, params, options):
     assert same_state(whole_state, tiled_state)
 
 
+def test_tiles_equal_whole_image_with_touching_objects():
+    """The Object Index pass is cropped with the other passes: the slab cut into two
+    objects that touch (SSSParams.contact) gives the same bits tiled and whole."""
+
+    def cut(frame):
+        objects = frame.objects.copy()
+        objects[(frame.material == 2) & (np.arange(W)[None, :] % 7 < 3)] = 9
+        return dataclasses.replace(frame, objects=objects)
+
+    frames = [cut(f) for f in FRAMES]
+    whole, whole_state = run_whole("as_ccv", FAST, MethodOptions(), frames)
+    tiled, tiled_state, _ = run_tiled("as_ccv", FAST, MethodOptions(), frames)
+    for a, b in zip(whole, tiled):
+        assert differences(a, b) == []
+    assert same_state(whole_state, tiled_state)
+    plain, _ = run_whole("as_ccv", FAST, MethodOptions(), FRAMES)
+    assert not np.array_equal(plain[-1].composite, whole[-1].composite)
+
+
 def test_odd_tile_sizes_and_a_tile_larger_than_the_image():
     whole, state = run_whole("as_ccv", FAST, MethodOptions(), FRAMES[:2])
     for tile in (7, 31, 200):
