@@ -7,16 +7,22 @@ restores every value on exit, also on error and on cancel. Nothing here saves
 the .blend.
 
 Passes enabled on the rendered view layer: Combined, Depth (``use_pass_z``),
-Material Index, Vector (motion blur off), Diffuse Direct / Indirect / Color
-and optionally Normal; every other pass is switched off. Denoising,
-compositing and the sequencer are off; output is a 32-bit multilayer EXR.
+Material Index, Object Index, Vector (motion blur off), Diffuse Direct /
+Indirect / Color and optionally Normal; every other pass is switched off.
+Denoising, compositing and the sequencer are off; output is a 32-bit
+multilayer EXR. For the render, the scene's objects are numbered (their Pass
+Index, objects with a participating material first), so the Object Index
+pass tells objects apart: Cycles never scatters light from one object into
+another, and neither does the post (SSSParams.contact).
 
-EEVEE has no Material Index pass (nor Diffuse Indirect: its Diffuse Light is
-written as Diffuse Direct). For EEVEE the slot is written by an AOV Output
-node added to each participating material (value AOV ``cvsss_material``),
-and the EXR is rewritten after the render so that AOV becomes the
-``Material Index`` pass (rounded: EEVEE filters AOVs) and the background
-depth, which EEVEE writes as the clip end, becomes 1e10 as in Cycles.
+EEVEE has no Material Index or Object Index pass (nor Diffuse Indirect: its
+Diffuse Light is written as Diffuse Direct). For EEVEE the slot and the
+object's number are written by AOV Output nodes added to each participating
+material (value AOVs ``cvsss_material`` and ``cvsss_object``, the latter
+from an Object Info node), and the EXR is rewritten after the render so that
+they become the ``Material Index`` and ``Object Index`` passes (rounded:
+EEVEE filters AOVs) and the background depth, which EEVEE writes as the clip
+end, becomes 1e10 as in Cycles.
 """
 
 from __future__ import annotations
@@ -177,13 +183,24 @@ def engine_identifier(scene, engine: str) -> str:
 #: Value AOV that carries the material slot when the engine has no Material Index pass.
 AOV_NAME = "cvsss_material"
 
+#: Value AOV that carries the object's number when the engine has no Object Index pass.
+OBJECT_AOV = "cvsss_object"
+
 #: Value AOV that carries a linked (textured) Subsurface Weight per pixel.
 WEIGHT_AOV = "cvsss_weight"
+
+#: Version of the pass set this module renders (2: with the Object Index pass); the
+#: demo renders its passes again when it changes.
+PASS_FORMAT = 2
+
+#: Largest object Pass Index Blender stores (a short).
+MAX_OBJECT_INDEX = 32767
 
 NEEDED_PASSES = (
     "use_pass_combined",
     "use_pass_z",
     "use_pass_material_index",
+    "use_pass_object_index",
     "use_pass_vector",
     "use_pass_diffuse_direct",
     "use_pass_diffuse_indirect",
@@ -295,6 +312,7 @@ class PassSetup(SceneSetup):
     materials : list of bpy.types.Material
         Participating materials; they get pass indices 1..K (in this order)
         and Subsurface Weight 0. Every other material gets pass index 0.
+        The scene's objects get pass indices 1..N (:func:`number_objects`).
     view_layer : bpy.types.ViewLayer
         The only view layer rendered.
     engine : {"CYCLES", "EEVEE"}
@@ -320,14 +338,17 @@ class PassSetup(SceneSetup):
         self.normal = normal
         self.denoise = denoise
         self._pass_index: dict[str, int] = {}
+        self._object_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
         self._aov = None
+        self._object_aov = None
         self._weight_aov = None
         self._aov_nodes: list[tuple[object, str]] = []
 
     def __enter__(self) -> PassSetup:
         try:
             self._pass_index = {m.name: m.pass_index for m in bpy.data.materials}
+            self._object_index = {o.name: o.pass_index for o in bpy.data.objects}
             super().__enter__()
             self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
         except BaseException:
@@ -354,6 +375,7 @@ class PassSetup(SceneSetup):
                 material.pass_index = 0
         for slot, material in enumerate(self.materials, 1):
             material.pass_index = slot
+        number_objects(self.scene, self.materials)
         if self.engine != "CYCLES":
             self._add_material_aov()
         self._add_weight_aovs()
@@ -381,18 +403,27 @@ class PassSetup(SceneSetup):
             tree.links.new(from_socket, node.inputs["Value"])
 
     def _add_material_aov(self) -> None:
-        """EEVEE: write each material's slot to the value AOV ``cvsss_material``."""
+        """EEVEE: write each material's slot to the value AOV ``cvsss_material`` and its
+        object's Pass Index to ``cvsss_object``."""
         layer = self.view_layer
-        if not any(aov.name == AOV_NAME for aov in layer.aovs):
-            self._aov = layer.aovs.add()
-            self._aov.name = AOV_NAME
-            self._aov.type = "VALUE"
+        for name, attr in ((AOV_NAME, "_aov"), (OBJECT_AOV, "_object_aov")):
+            if not any(aov.name == name for aov in layer.aovs):
+                aov = layer.aovs.add()
+                aov.name = name
+                aov.type = "VALUE"
+                setattr(self, attr, aov)
         for slot, material in enumerate(self.materials, 1):
             tree = material.node_tree
             node = tree.nodes.new("ShaderNodeOutputAOV")
             self._aov_nodes.append((tree, node.name))
             node.aov_name = AOV_NAME
             node.inputs["Value"].default_value = float(slot)
+            info = tree.nodes.new("ShaderNodeObjectInfo")
+            self._aov_nodes.append((tree, info.name))
+            node = tree.nodes.new("ShaderNodeOutputAOV")
+            self._aov_nodes.append((tree, node.name))
+            node.aov_name = OBJECT_AOV
+            tree.links.new(info.outputs["Object Index"], node.inputs["Value"])
 
     def restore(self) -> None:
         """Put back everything saved so far (safe to call more than once)."""
@@ -401,7 +432,7 @@ class PassSetup(SceneSetup):
             if node is not None:
                 tree.nodes.remove(node)
         self._aov_nodes = []
-        for name in ("_aov", "_weight_aov"):
+        for name in ("_aov", "_object_aov", "_weight_aov"):
             aov = getattr(self, name)
             if aov is not None:
                 self.view_layer.aovs.remove(aov)
@@ -414,7 +445,35 @@ class PassSetup(SceneSetup):
             if index is not None and material.pass_index != index:
                 material.pass_index = index
         self._pass_index = {}
+        for obj in bpy.data.objects:
+            index = self._object_index.get(obj.name)
+            if index is not None and obj.pass_index != index:
+                obj.pass_index = index
+        self._object_index = {}
         super().restore()
+
+
+def number_objects(scene, materials) -> None:
+    """Give the scene's objects distinct Pass Indices (1, 2, …) for the Object Index pass.
+
+    Objects that carry one of ``materials`` come first, so they stay distinct
+    even in a scene with more objects than Blender numbers (32767); the rest
+    share 0 from there on (they are not scattered from, only told apart from
+    the ones that are). Linked (read-only) objects keep theirs.
+    :class:`PassSetup` restores them all.
+    """
+    wanted = set(materials)
+
+    def carries(obj) -> bool:
+        return any(s.material in wanted for s in getattr(obj, "material_slots", ()))
+
+    in_scene = [o for o in scene.objects if o.is_editable]
+    order = [o for o in in_scene if carries(o)] + [o for o in in_scene if not carries(o)]
+    numbers = {o.name: i for i, o in enumerate(order, 1) if i <= MAX_OBJECT_INDEX}
+    for obj in in_scene:
+        index = numbers.get(obj.name, 0)
+        if obj.pass_index != index:
+            obj.pass_index = index
 
 
 # -- one frame ---------------------------------------------------------------------------------
@@ -595,14 +654,16 @@ def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]
 def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
     """Rewrite an EEVEE pass EXR in place so it reads like a Cycles one.
 
-    The value AOV ``<layer>.cvsss_material`` becomes ``<layer>.Material Index``
-    (rounded to whole slots) and depths at the clip end become 1e10.
+    The value AOVs ``<layer>.cvsss_material`` and ``<layer>.cvsss_object`` become
+    ``<layer>.Material Index`` and ``<layer>.Object Index`` (rounded to whole
+    numbers) and depths at the clip end become 1e10.
     """
     names = []
+    renamed = {f"{layer}.{AOV_NAME}": "Material Index", f"{layer}.{OBJECT_AOV}": "Object Index"}
 
     def edit(name: str, channels: dict) -> tuple[str, dict]:
-        if name == f"{layer}.{AOV_NAME}":
-            name = f"{layer}.Material Index"
+        if name in renamed:
+            name = f"{layer}.{renamed[name]}"
             (values,) = channels.values()
             channels = {f"{name}.X": np.rint(values).astype(np.float32)}
         elif name == f"{layer}.Depth":

@@ -163,13 +163,16 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
 
 def scene_state(scene) -> dict:
     """Everything the pass render may touch: materials (every node input, links,
-    pass index), view layers (pass flags), render/image/Cycles settings, frame."""
+    pass index), object pass indices, view layers (pass flags), render/image/Cycles
+    settings, frame."""
     import bpy
 
     out: dict = {}
     for material in bpy.data.materials:
         out[f"mat:{material.name}.pass_index"] = material.pass_index
         _tree(material.node_tree, f"mat:{material.name}", out, set())
+    for obj in bpy.data.objects:
+        out[f"obj:{obj.name}.pass_index"] = obj.pass_index
     for layer in scene.view_layers:
         _props(layer, f"layer:{layer.name}", out)
         if getattr(layer, "cycles", None) is not None:

@@ -24,6 +24,7 @@ EXPECTED_PASSES = {
     "Combined",
     "Depth",
     "Material Index",
+    "Object Index",
     "Vector",
     "Diffuse Direct",
     "Diffuse Indirect",
@@ -160,6 +161,12 @@ def test_render_passes_only_needed_passes_resumable(demo, tmp_path, snapshot):
     assert set(np.unique(frame.material)) == {0, *slots.values()}  # floor and background 0
     skin_px = frame.material == slots["cvsss Skin"]
     assert skin_px.any() and frame.motion is not None and np.isfinite(frame.depth[skin_px]).all()
+    # Object Index: the marble block and the marble table top share a material but
+    # are told apart; the background is 0.
+    marble = frame.material == slots["cvsss Marble"]
+    assert len(np.unique(frame.objects[marble])) >= 2
+    assert (frame.objects[~np.isfinite(frame.depth)] == 0).all()
+    assert (frame.objects[frame.material > 0] > 0).all()
 
     # Resumable: existing frames are kept unless overwrite.
     mtimes = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
@@ -303,6 +310,10 @@ def test_linked_and_animated_weight_are_forced_to_zero_and_restored(demo, snapsh
 
     mats = [skin, other]
     layer = demo.view_layers[0]
+    # A user's own object numbering, which the render must put back.
+    for obj in demo.objects:
+        obj.pass_index = 7
+    before = scene_state(demo)
     with passes.PassSetup(demo, mats, layer):
         demo.frame_set(2)
         assert weight.default_value == 0.0 and not weight.is_linked
@@ -310,6 +321,14 @@ def test_linked_and_animated_weight_are_forced_to_zero_and_restored(demo, snapsh
         assert skin.pass_index == 1 and other.pass_index == 2
         assert bpy.data.materials["cvsss Floor"].pass_index == 0
         assert layer.use_pass_material_index and layer.use_pass_vector and layer.use_pass_z
+        # Objects numbered 1..N, those that carry a participating material first.
+        numbers = sorted(o.pass_index for o in demo.objects)
+        assert numbers == list(range(1, len(numbers) + 1))
+        carriers = [
+            o.pass_index for o in demo.objects if any(s.material in mats for s in o.material_slots)
+        ]
+        assert carriers and sorted(carriers) == list(range(1, len(carriers) + 1))
+        assert layer.use_pass_object_index
         assert not layer.use_pass_normal and not demo.render.use_motion_blur
         assert not demo.cycles.use_denoising
     demo.frame_set(1)
@@ -454,9 +473,15 @@ def test_eevee_setup_writes_slots_through_an_aov_and_restores(demo, snapshot):
     n_nodes = len(skin.node_tree.nodes)
     with passes.PassSetup(demo, [skin], layer, engine="EEVEE"):
         assert demo.render.engine in ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT")
-        assert [aov.name for aov in layer.aovs] == [passes.AOV_NAME]
-        (node,) = (n for n in skin.node_tree.nodes if n.bl_idname == "ShaderNodeOutputAOV")
-        assert node.aov_name == passes.AOV_NAME and node.inputs["Value"].default_value == 1.0
+        assert [aov.name for aov in layer.aovs] == [passes.AOV_NAME, passes.OBJECT_AOV]
+        nodes = {
+            n.aov_name: n for n in skin.node_tree.nodes if n.bl_idname == "ShaderNodeOutputAOV"
+        }
+        assert sorted(nodes) == sorted([passes.AOV_NAME, passes.OBJECT_AOV])
+        assert nodes[passes.AOV_NAME].inputs["Value"].default_value == 1.0
+        (link,) = nodes[passes.OBJECT_AOV].inputs["Value"].links
+        assert link.from_node.bl_idname == "ShaderNodeObjectInfo"
+        assert link.from_socket.name == "Object Index"
     assert len(skin.node_tree.nodes) == n_nodes and len(layer.aovs) == 0
     assert not state_diff(before, scene_state(demo))
 
@@ -466,6 +491,7 @@ def test_aov_to_material_index_rewrites_an_eevee_file(tmp_path):
 
     h, w = 3, 4
     aov = np.array([[0, 0.4, 0.6, 1], [1, 1, 2.2, 1.9], [0, 0, 0, 0]], np.float32)
+    objects = np.array([[0, 3.1, 2.9, 4], [4, 4, 5.4, 0.2], [0, 0, 0, 0]], np.float32)
     depth = np.full((h, w), 5.0, np.float32)
     depth[2] = 100.0025  # EEVEE background: the clip end
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -474,14 +500,24 @@ def test_aov_to_material_index_rewrites_an_eevee_file(tmp_path):
         OpenEXR.Part(
             dict(header), {f"ViewLayer.{passes.AOV_NAME}.X": aov}, f"ViewLayer.{passes.AOV_NAME}"
         ),
+        OpenEXR.Part(
+            dict(header),
+            {f"ViewLayer.{passes.OBJECT_AOV}.X": objects},
+            f"ViewLayer.{passes.OBJECT_AOV}",
+        ),
     ]
     path = tmp_path / "eevee.exr"
     OpenEXR.File(parts).write(str(path))
     passes.aov_to_material_index(path, "ViewLayer", clip_end=100.0)
     f = OpenEXR.File(str(path), separate_channels=True)
     channels = {k: np.asarray(c.pixels) for p in f.parts for k, c in p.channels.items()}
-    assert sorted(channels) == ["ViewLayer.Depth.Z", "ViewLayer.Material Index.X"]
+    assert sorted(channels) == [
+        "ViewLayer.Depth.Z",
+        "ViewLayer.Material Index.X",
+        "ViewLayer.Object Index.X",
+    ]
     np.testing.assert_array_equal(channels["ViewLayer.Material Index.X"], np.rint(aov))
+    np.testing.assert_array_equal(channels["ViewLayer.Object Index.X"], np.rint(objects))
     assert (channels["ViewLayer.Depth.Z"][2] == 1e10).all()
     assert (channels["ViewLayer.Depth.Z"][:2] == 5.0).all()
 
@@ -495,3 +531,8 @@ def test_eevee_render_reads_like_cycles(demo, tmp_path):
     frame = read_frame(tmp_path / "out" / "passes" / "0001.exr")
     assert set(np.unique(frame.material)) == {0, 1, 2, 3}
     assert np.isinf(frame.depth[frame.material == 0]).any()
+    # The object AOV became the Object Index pass: each SSS material's pixels
+    # show numbered objects (only SSS materials write it in EEVEE).
+    assert frame.objects is not None
+    for slot in (1, 2, 3):
+        assert (frame.objects[frame.material == slot] > 0).mean() > 0.9

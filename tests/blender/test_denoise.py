@@ -13,7 +13,7 @@ from cvsss.sss_addon.blender import passes, render  # noqa: E402
 pytestmark = pytest.mark.bpy
 
 DENOISED = ("Combined", "Diffuse Direct", "Diffuse Indirect", "Diffuse Color")
-UNTOUCHED = ("Depth", "Material Index", "Vector")
+UNTOUCHED = ("Depth", "Material Index", "Object Index", "Vector")
 # Header entries that change from render to render.
 VOLATILE = ("Date", "RenderTime", "chunkCount")
 
