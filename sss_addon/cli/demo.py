@@ -471,7 +471,10 @@ def _pass_cache(
 
     Frames made with other (or unknown) settings, or all with ``overwrite``,
     are deleted; the new stamp is written before any frame is made, so an
-    interrupted run continues with the same settings.
+    interrupted run continues with the same settings. When only the pass
+    configuration changed (``pass_format``: the passes the renderer writes),
+    only the passes and the denoised passes go: the ground truth and the
+    equal-time frames were rendered from the same scene and stay.
     """
     passes = scene_dir / "passes"
     stamp_path = scene_dir / "demo.json"
@@ -482,6 +485,8 @@ def _pass_cache(
     # The passes and everything rendered beside them (ground truth, denoised
     # passes, equal-time frames, their timings) were made from the same scene.
     made = [passes, *(scene_dir / d for d in ("ground_truth", "equal_time", "denoised/passes"))]
+    if not overwrite and isinstance(old, dict) and _same_scene(old, stamp):
+        made = [passes, scene_dir / "denoised/passes"]
     frames = [
         p
         for folder in made
@@ -489,7 +494,7 @@ def _pass_cache(
         for p in folder.rglob("*")
         if p.suffix in (".exr", ".json") and p.is_file()
     ]
-    if (scene_dir / "timing.json").is_file():
+    if (scene_dir / "timing.json").is_file() and len(made) > 2:
         frames.append(scene_dir / "timing.json")
     if frames and (overwrite or old != stamp):
         if log:
@@ -504,6 +509,19 @@ def _pass_cache(
     make_folder(passes)
     write_text(stamp_path, json.dumps(stamp, indent=2))
     return passes
+
+
+#: Stamp entries that only the pass render depends on (not the ground truth).
+_PASS_ONLY = ("pass_format",)
+
+
+def _same_scene(old: dict, new: dict) -> bool:
+    """The two stamps differ at most in how the passes are rendered (:data:`_PASS_ONLY`)."""
+
+    def scene(stamp: dict) -> dict:
+        return {k: v for k, v in stamp.items() if k not in _PASS_ONLY}
+
+    return scene(old) == scene(new)
 
 
 def _synthetic_passes(
@@ -565,6 +583,7 @@ def blender_passes(
     import bpy
 
     from ...demo_blend import scenes
+    from ..blender import passes as passes_module
     from ..blender import render
 
     scene_dir = Path(scene_dir)
@@ -577,6 +596,8 @@ def blender_passes(
         "engine": engine,
         "samples": samples,
         "blender": bpy.app.version_string,
+        # A change to the passes rendered makes the passes again (not the ground truth).
+        "pass_format": passes_module.PASS_FORMAT,
         # A change to the scene builders makes the frames again.
         "scenes_sha256": hashlib.sha256(Path(scenes.__file__).read_bytes()).hexdigest(),
     }

@@ -116,3 +116,25 @@ def test_pass_cache_follows_the_settings(tmp_path):
     assert cli.main([*base, "--res", "24x16", "--frames", "3"]) == 0
     assert (passes / "0001.exr").stat().st_mtime_ns != mtime
     assert json.loads((out / "flash" / "demo.json").read_text())["frames"] == 3
+
+
+def test_a_new_pass_format_renders_the_passes_again_but_keeps_the_ground_truth(tmp_path):
+    """Only the passes depend on what the pass render writes (``pass_format``): the ground
+    truth and the equal-time frames, rendered from the same scene, are kept; a change to
+    the scene itself removes them all."""
+
+    scene = tmp_path / "flash"
+    kept = ["ground_truth/0001.exr", "equal_time/cycles_16/0021.exr", "timing.json"]
+    gone = ["passes/0001.exr", "passes/0001.json", "denoised/passes/0001.exr"]
+    for name in kept + gone:
+        (scene / name).parent.mkdir(parents=True, exist_ok=True)
+        (scene / name).write_text("{}")
+    old = {"source": "blender", "scene": "flash", "frames": 5, "scenes_sha256": "a"}
+    (scene / "demo.json").write_text(json.dumps(old))
+    logged = []
+    demo._pass_cache(scene, {**old, "pass_format": 2}, False, logged.append)
+    assert [n for n in kept + gone if (scene / n).exists()] == kept
+    assert "removing 3 pass file(s)" in logged[0]
+    assert json.loads((scene / "demo.json").read_text())["pass_format"] == 2
+    demo._pass_cache(scene, {**old, "pass_format": 2, "scenes_sha256": "b"}, False, None)
+    assert not any((scene / n).exists() for n in kept)
