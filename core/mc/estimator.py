@@ -18,7 +18,7 @@ channel. The centre value serves as an exact control:
 unbiased because E[w_c] = γ_c, identical to the paper's estimator when the
 three channels share one profile (then w_c ≡ γ_c), and exact for constant
 lighting for any m even when the channels differ. Samples that land off
-screen, on another material or across a depth discontinuity fall back to the
+screen, on another material (or object) or across a depth discontinuity fall back to the
 centre ("follow surface", Jimenez et al. 2015) and so add nothing.
 
 With a :class:`~cvsss.core.geometry.Surface` in the Geometry (SSSParams
@@ -357,7 +357,7 @@ def estimate_distant(
     disk : bool, weigh with the kernel of Cycles' disk estimator instead of the
         profile at the surface distance (with ``geom.surface``; module doc)
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
-        a sample counts with when it lands on the background or another material
+        a sample counts with when it lands on the background or another material (or object)
         nearer than an occluder (the hidden surface; module doc); 1: the centre's light
     contact : float >= 0, with ``geom.objects``: a sample on another object within
         ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
@@ -599,8 +599,9 @@ def _numpy_sums(
                 if not touching.any():
                     touching = None
         # Hidden surface: a rejected sample on the image that landed on the background or
-        # another material (not in front of the centre, an occluder) counts with the
-        # centre's light less (1 − β) of its direct part, at its planar weight.
+        # another material or object (not in front of the centre, an occluder, nor
+        # touching it) counts with the centre's light less (1 − β) of its direct part, at
+        # its planar weight.
         fill = None
         if fill_value is not None:
             fill = inside & ~ok

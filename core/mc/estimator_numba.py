@@ -187,7 +187,7 @@ def _pixel_sums(
     aspect : float32, footprint width / height
     disk : bool, weigh with the kernel of Cycles' disk estimator (texel normals)
     hidden : float32, the hidden-light share β (< 1: rejected samples on the background
-        or another material count −(1 − β)·B_direct(p) at their planar weight)
+        or another material or object count −(1 − β)·B_direct(p) at their planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     use_obj : bool, the texels' slot carries the object (``slot + K·object``):
         a sample on another object is rejected (or, within ``touch·r`` of the
