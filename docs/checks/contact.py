@@ -74,7 +74,9 @@ def main() -> None:
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path("out/demo")
     scenes = sys.argv[2:] or ["flash", "regular", "boids"]
     print(f"fixed {SPP} spp against Cycles' ground truth, SSS pixels, mean over GT frames")
-    print(f"{'scene':8s} {'variant':14s} {'PSNR dB':>8s} {'change':>7s} {'outer':>6s} {'contact':>7s}")
+    print(
+        f"{'scene':8s} {'variant':14s} {'PSNR dB':>8s} {'change':>7s} {'outer':>6s} {'contact':>7s}"
+    )
     for scene in scenes:
         figures = measure(out / scene)
         base = figures["no objects"]["psnr_gt_db"]
