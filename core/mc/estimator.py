@@ -18,8 +18,8 @@ channel. The centre value serves as an exact control:
 unbiased because E[w_c] = γ_c, identical to the paper's estimator when the
 three channels share one profile (then w_c ≡ γ_c), and exact for constant
 lighting for any m even when the channels differ. Samples that land off
-screen, on another material (or object) or across a depth discontinuity fall back to the
-centre ("follow surface", Jimenez et al. 2015) and so add nothing.
+screen, on another material (or object) or across a depth discontinuity fall
+back to the centre ("follow surface", Jimenez et al. 2015) and so add nothing.
 
 With a :class:`~cvsss.core.geometry.Surface` in the Geometry (SSSParams
 ``distance = "surface"``), channel c's weight becomes
@@ -357,8 +357,9 @@ def estimate_distant(
     disk : bool, weigh with the kernel of Cycles' disk estimator instead of the
         profile at the surface distance (with ``geom.surface``; module doc)
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
-        a sample counts with when it lands on the background or another material (or object)
-        nearer than an occluder (the hidden surface; module doc); 1: the centre's light
+        a sample counts with when it lands on the background or another material or
+        object nearer than an occluder (the hidden surface; module doc); 1: the
+        centre's light
     contact : float >= 0, with ``geom.objects``: a sample on another object within
         ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
         continuing under it (module doc, *Objects*); 0: no such samples
