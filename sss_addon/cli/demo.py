@@ -484,9 +484,10 @@ def _pass_cache(
         old = None
     # The passes and everything rendered beside them (ground truth, denoised
     # passes, equal-time frames, their timings) were made from the same scene.
-    made = [passes, *(scene_dir / d for d in ("ground_truth", "equal_time", "denoised/passes"))]
-    if not overwrite and isinstance(old, dict) and _same_scene(old, stamp):
-        made = [passes, scene_dir / "denoised/passes"]
+    made = [passes, scene_dir / "denoised/passes"]
+    same_scene = not overwrite and isinstance(old, dict) and _same_scene(old, stamp)
+    if not same_scene:
+        made += [scene_dir / "ground_truth", scene_dir / "equal_time"]
     frames = [
         p
         for folder in made
@@ -494,7 +495,7 @@ def _pass_cache(
         for p in folder.rglob("*")
         if p.suffix in (".exr", ".json") and p.is_file()
     ]
-    if (scene_dir / "timing.json").is_file() and len(made) > 2:
+    if (scene_dir / "timing.json").is_file() and not same_scene:
         frames.append(scene_dir / "timing.json")
     if frames and (overwrite or old != stamp):
         if log:
