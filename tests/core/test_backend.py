@@ -401,3 +401,25 @@ def test_compiled_kernel_is_cached_on_disk():
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["hits"] >= 2 and out["misses"] == 0
+
+
+def test_surface_keys_tell_every_slot_and_object_apart_in_float32():
+    """The kernel's texel keys ``slot + K·object``: equal exactly for the same material of
+    the same object, the object recovered by floor(key/K), exact in float32 even with
+    many slots and the largest object numbers (renumbered by rank when they would not
+    fit)."""
+    from cvsss.core.mc.estimator_numba import surface_keys
+
+    rng = np.random.default_rng(1)
+    slots = rng.integers(0, 700, 5000).astype(np.int32)  # K = 1024
+    objects = rng.choice([0, 3, 17, 32767], 5000).astype(np.int32)  # 32768·1024 > 2**24
+    keys, inv_k = surface_keys(slots, objects)
+    k32 = keys.astype(np.float32)
+    assert np.array_equal(k32.astype(np.int64), keys)  # exact in float32
+    pairs = slots.astype(np.int64) * 100_000 + objects
+    same_key = k32[:, None] == k32[None, :200]
+    assert np.array_equal(same_key, pairs[:, None] == pairs[None, :200])
+    obj = np.floor(k32 * inv_k)
+    assert np.array_equal(obj[:, None] == obj[None, :200], objects[:, None] == objects[None, :200])
+    plain, one = surface_keys(slots, None)
+    assert np.array_equal(plain, slots) and one == 1.0
