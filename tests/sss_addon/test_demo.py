@@ -138,3 +138,54 @@ def test_a_new_pass_format_renders_the_passes_again_but_keeps_the_ground_truth(t
     assert json.loads((scene / "demo.json").read_text())["pass_format"] == 2
     demo._pass_cache(scene, {**old, "pass_format": 2, "scenes_sha256": "b"}, False, None)
     assert not any((scene / n).exists() for n in kept)
+
+
+def test_each_missed_ground_truth_target_says_why():
+    """report.md explains every missed ground-truth target with the figure that shows why:
+    the noise-free reference's room over separable and what as_ccv's noise costs of it,
+    the reference's own rim, and its ceiling against Cycles with its denoiser."""
+
+    def method(gt, warm, outer=1.0):
+        return {"psnr_gt_db": gt, "psnr_gt_warm_db": warm, "rim_outer_ratio": outer}
+
+    summary = {
+        "s": {
+            "reference": method(31.5, 31.5, 1.066),
+            "as_ccv": method(30.5, 30.5, 1.067),
+            "as_ccv_t": method(31.2, 31.2),
+            "separable": method(29.1, 29.1),
+            "none": method(26.4, 26.4),
+        }
+    }
+    extras = {
+        "s": {"equal_time": [{"what": "Cycles subsurface, 16 spp + OIDN", "psnr_gt_db": 36.2}]}
+    }
+    rows = [
+        {
+            "scene": "s",
+            "check": "as_ccv - separable, warm frames (dB) >= 2",
+            "value": 1.4,
+            "met": False,
+        },
+        {
+            "scene": "s",
+            "check": "outer silhouette luminance as_ccv / GT - 1",
+            "value": 0.07,
+            "met": False,
+        },
+        {
+            "scene": "s",
+            "check": "denoised passes + as_ccv - Cycles (dB)",
+            "value": -5.0,
+            "met": False,
+        },
+        {"scene": "s", "check": "as_ccv - none, warm frames (dB) >= 3", "value": 4.1, "met": True},
+    ]
+    lines = demo.truth_reasons(summary, extras, rows)
+    reasons = [line for line in lines if line.startswith("- s, ")]
+    assert len(reasons) == 3  # one per miss, none for the target met
+    assert "+2.40 dB from separable, so the model has the room" in reasons[0]
+    assert "costs 1.00 dB" in reasons[0] and "+2.10 dB from separable" in reasons[0]
+    assert "outer rim is +0.066 too" in reasons[1]
+    assert "reaches 31.50 dB" in reasons[2] and "36.20 dB" in reasons[2]
+    assert demo.truth_reasons(summary, extras, rows[3:]) == []
