@@ -347,8 +347,8 @@ class PassSetup(SceneSetup):
 
     def __enter__(self) -> PassSetup:
         try:
-            self._pass_index = {m.name: m.pass_index for m in bpy.data.materials}
-            self._object_index = {o.name: o.pass_index for o in bpy.data.objects}
+            self._pass_index = _pass_indices(bpy.data.materials)
+            self._object_index = _pass_indices(bpy.data.objects)
             super().__enter__()
             self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
         except BaseException:
@@ -440,17 +440,24 @@ class PassSetup(SceneSetup):
         if self._sss is not None:
             self._sss.restore()
             self._sss = None
-        for material in bpy.data.materials:
-            index = self._pass_index.get(material.name)
-            if index is not None and material.pass_index != index:
-                material.pass_index = index
+        _put_back_pass_indices(bpy.data.materials, self._pass_index)
         self._pass_index = {}
-        for obj in bpy.data.objects:
-            index = self._object_index.get(obj.name)
-            if index is not None and obj.pass_index != index:
-                obj.pass_index = index
+        _put_back_pass_indices(bpy.data.objects, self._object_index)
         self._object_index = {}
         super().restore()
+
+
+def _pass_indices(datablocks) -> dict[str, int]:
+    """name -> Pass Index of every material or object (what :class:`PassSetup` restores)."""
+    return {d.name: d.pass_index for d in datablocks}
+
+
+def _put_back_pass_indices(datablocks, saved: dict[str, int]) -> None:
+    """Set each datablock's Pass Index back to ``saved`` where it changed."""
+    for d in datablocks:
+        index = saved.get(d.name)
+        if index is not None and d.pass_index != index:
+            d.pass_index = index
 
 
 def number_objects(scene, materials) -> None:
@@ -468,7 +475,7 @@ def number_objects(scene, materials) -> None:
         return any(s.material in wanted for s in getattr(obj, "material_slots", ()))
 
     in_scene = [o for o in scene.objects if o.is_editable]
-    order = [o for o in in_scene if carries(o)] + [o for o in in_scene if not carries(o)]
+    order = sorted(in_scene, key=lambda o: not carries(o))  # stable: carriers first
     numbers = {o.name: i for i, o in enumerate(order, 1) if i <= MAX_OBJECT_INDEX}
     for obj in in_scene:
         index = numbers.get(obj.name, 0)
