@@ -63,6 +63,8 @@ _ROWS = 13
 ) = range(0, _ROWS * BATCH, BATCH)
 #: Pixels per parallel task (one set of batch buffers each).
 PIXELS_PER_TASK = 64
+#: Side of the square pixel tiles the kernel visits the pixels in (see tile_order).
+TILE = 32
 _M32 = np.uint64(0xFFFFFFFF)
 # numba does integer arithmetic in 64 bits: the R2 step wraps modulo 2**32 by the mask.
 _A = np.uint64(R2_STEP_U32[0])
@@ -111,6 +113,7 @@ def _pdf(x, k, inv_d, ptab, size):
 
 def _pixel_sums(
     active,
+    order,
     counts,
     gx,
     gy,
@@ -171,6 +174,8 @@ def _pixel_sums(
     Parameters
     ----------
     active : (P,) int64, the active pixels (indices into the Geometry's arrays)
+    order : (P,) int64, the order to visit them in (a permutation of 0…P−1; see
+        :func:`tile_order`): results are per pixel, so the order changes only the speed
     counts : (G,) int64, samples per SSS pixel of the Geometry (m ≥ 1 where active)
     gx, gy : (G,) int64 image coords; gamma, lo, hi : (G, 3) float64; gamma_sum : (G,)
     gmat : (G,) int32 compact slot; fw, fh, gdepth : (G,) float64, scene units
@@ -246,8 +251,9 @@ def _pixel_sums(
         t_hash = np.empty((PIXELS_PER_TASK, 2), np.uint64)
         t_e = np.empty((PIXELS_PER_TASK, 2), np.float32)
         t_map = np.empty((PIXELS_PER_TASK, 2, 3), np.float32)
-        for i in range(first, last):
-            li = i - first
+        for k in range(first, last):
+            li = k - first
+            i = order[k]
             g = active[i]
             hxi, hyi = _pcg3d_xy(np.uint64(gx[g]) & _M32, np.uint64(gy[g]) & _M32, seed_z)
             t_hash[li, 0] = hxi
@@ -268,8 +274,9 @@ def _pixel_sums(
                 tb = (lo[g, c] - hi[g, c]) * sl
                 t_map[li, 0, c] = np.float32(hi[g, c] - tb * ec)
                 t_map[li, 1, c] = np.float32(tb)
-        for i in range(first, last):
-            li = i - first
+        for k in range(first, last):
+            li = k - first
+            i = order[k]
             g = active[i]
             m = counts[g]
             mat = gmat[g]
@@ -694,6 +701,23 @@ def surface_keys(slots: np.ndarray, objects: np.ndarray | None) -> tuple[np.ndar
     return (slots + k * objects.astype(np.int32)).astype(np.int32), np.float32(1.0 / k)
 
 
+def tile_order(x: np.ndarray, y: np.ndarray, width: int) -> np.ndarray:
+    """(P,) int64: visit pixels (in row-major order) tile by tile, TILE×TILE pixels each.
+
+    A sample reads a texel up to the profile's radius away (tens of pixels). In
+    row-major order the rows a pixel's samples reach span the whole image width;
+    at 1920×1080 that band (~2 MB of texels) no longer stays in a core's L2
+    cache, and a sample cost 40.9 ns against 28.2 ns in 32×32 tiles (minimum of 8
+    interleaved calls, 2 threads; 640×360 is unchanged).
+    """
+    tiles_x = -(-int(width) // TILE)
+    key = (y // TILE) * tiles_x + x // TILE
+    key = key.astype(
+        np.uint16 if tiles_x * (int(y.max(initial=0)) // TILE + 1) < 1 << 16 else np.int64
+    )
+    return np.argsort(key, kind="stable")
+
+
 def kernel(samples: int):
     """The compiled kernel for a call taking ``samples`` samples (serial below a threshold)."""
     return pixel_sums if samples >= PARALLEL_MIN_SAMPLES else pixel_sums_serial
@@ -742,6 +766,7 @@ def run_kernel(
     first = active[0]
     sums, var, fb = kernel(int(counts[active].sum()))(
         active,
+        tile_order(geom.x[active], geom.y[active], full_w),
         counts,
         geom.x,
         geom.y,
@@ -809,6 +834,7 @@ def _warm(fn) -> None:
     one = np.ones(1)
     g3 = np.full((1, 3), 0.5)
     fn(
+        np.zeros(1, np.int64),
         np.zeros(1, np.int64),
         np.ones(1, np.int64),
         np.zeros(1, np.int64),
