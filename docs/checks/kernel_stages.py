@@ -29,8 +29,8 @@ from cvsss.core.profiles.factory import ProfileCache
 from cvsss.core.synthetic import scene_frame
 
 STAGES = (
-    "                # Stage 1: R2 point",
-    "                # Stage 2: the follow-surface tests.",
+    "                # Stage 1a: R2 point",
+    "                # Stage 2a: the landing pixel",
     "                # Stage 3: per-channel weights",
     "                # Stage 4: gather and sum",
 )
@@ -38,7 +38,7 @@ LOOP = "            for k0 in range(1, m + 1, BATCH):"
 END = "            sums[i, 0] = s0"
 # What each cut copy adds to its sum so that the cut stage's stores stay live.
 KEEP = (
-    "            s0 += pa + nz + t_a[2]\n",
+    "            s0 += pa + nz + t_map[li, 0, 2]\n",
     "                s0 += fb[_ROW_R]\n",
     "                s0 += fb[_ROW_ZQ]\n",
     "                s0 += b_w[0, 0]\n",

@@ -1,0 +1,101 @@
+"""The compiled kernel of this checkout against the one of a git revision, side by side.
+
+Loads ``core/mc/estimator_numba.py`` as it was at REV (``git show``) next to
+the current one and times both on the bench's flash frame (``core.synthetic``)
+with the default sample kernel (``cycles``) and the sample counts of a steady
+``as_ccv`` frame (frame 3, history from frames 1–2), calls interleaved, so a
+slow spell of a shared machine hits both. Prints ns per sample of the whole
+``run_kernel`` call (minimum, 25th percentile and median of the calls) and
+whether both give the same bits. REV must have the current ``run_kernel``
+signature (6ff9b0c or later). Run from the repo root:
+
+    .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N]
+"""
+
+import argparse
+import importlib.util
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cvsss.core.geometry import prepare
+from cvsss.core.mc import estimator_numba
+from cvsss.core.methods import make_processor
+from cvsss.core.params import SSSParams
+from cvsss.core.synthetic import scene_frame
+
+
+def load_revision(rev: str, folder: Path):
+    """The kernel module as it was at ``rev``, compiled from a temporary copy."""
+    text = subprocess.run(
+        ["git", "show", f"{rev}:core/mc/estimator_numba.py"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    text = text.replace("from ..sampling", "from cvsss.core.sampling")
+    path = folder / f"kernel_{rev.replace('/', '_')}.py"
+    path.write_text(text.replace("cache=True", "cache=False"))
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
+    w, h = size
+    params = SSSParams(backend="numba")
+    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
+    proc = make_processor("as_ccv", params)
+    for frame in frames:
+        result = proc.process(frame)
+    frame = frames[-1]
+    profile = proc.profiles.get(frame)
+    geom = prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
+    counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
+    active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
+    total = int(counts[active].sum())
+    args = (frame.lighting, frame.depth, frame.number, params.seed, params.depth_slope)
+    tail = (False, True, params.hidden_light, params.contact)
+
+    def run(module):
+        return module.run_kernel(geom, profile, counts, active, *args, *tail)
+
+    outputs = {name: run(module) for name, module in modules.items()}  # compiles
+    times = {name: [] for name in modules}
+    for _ in range(calls):
+        for name, module in modules.items():
+            t0 = time.perf_counter()
+            run(module)
+            times[name].append(time.perf_counter() - t0)
+    first = next(iter(outputs.values()))
+    print(f"{w}x{h}: {active.size} pixels, {total} samples ({total / active.size:.1f} spp)")
+    for name, t in times.items():
+        ns = np.array(t) * 1e9 / total
+        same = all(
+            np.array_equal(a, b) if a is not None else b is None
+            for a, b in zip(first, outputs[name])
+        )
+        print(
+            f"  {name:>10}: min {ns.min():6.2f}  p25 {np.percentile(ns, 25):6.2f}  "
+            f"median {np.median(ns):6.2f} ns/sample  same bits as first: {same}"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rev")
+    ap.add_argument("sizes", nargs="*", default=["640x360", "1280x720", "1920x1080"])
+    ap.add_argument("--calls", type=int, default=15)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": estimator_numba}
+        for size in a.sizes:
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
+
+
+if __name__ == "__main__":
+    main()
