@@ -1,0 +1,90 @@
+"""What the compiled kernel costs per pixel and per sample, from a fit over fixed counts.
+
+Times the kernel call alone (``core.mc.estimator_numba.kernel``, inside
+``run_kernel``) on the bench's flash frame (``core.synthetic``, default sample
+kernel ``cycles``) with every SSS pixel at N ∈ {1, 2, 4, 8, 16, 32} samples,
+calls interleaved, minimum of ``--calls`` per N, on one thread and on all of
+them, and fits ``time = a·pixels + b·samples``. ``a`` is what a pixel costs
+besides its samples: its set-up and the latency of its first samples' reads,
+which nothing overlaps when a pixel takes few. ``b`` is printed next to the
+bench's gather roofline (``core.eval.bench.gather_ns_per_sample``, timed in
+the same run with the 32-spp counts). Run from the repo root:
+
+    .venv/bin/python docs/checks/kernel_per_pixel.py [WxH] [--calls N]
+"""
+
+import argparse
+import time
+
+import numba
+import numpy as np
+
+from cvsss.core.eval.bench import gather_ns_per_sample
+from cvsss.core.geometry import prepare
+from cvsss.core.mc import estimator_numba
+from cvsss.core.params import SSSParams
+from cvsss.core.profiles.factory import ProfileCache
+from cvsss.core.synthetic import scene_frame
+
+COUNTS = (1, 2, 4, 8, 16, 32)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("size", nargs="?", default="640x360")
+    ap.add_argument("--calls", type=int, default=9)
+    a = ap.parse_args()
+    w, h = (int(v) for v in a.size.split("x"))
+    params = SSSParams()
+    frame = scene_frame("flash", 2, w, h)
+    profile = ProfileCache(params, None).get(frame)
+    geom = prepare(frame, profile, surface_distance=True, backend="numba")
+    active = np.flatnonzero(geom.gamma_sum > 0)
+    timed = {}
+    original = estimator_numba.kernel
+
+    def kernel(samples):
+        fn = estimator_numba.pixel_sums  # the parallel build at every count
+
+        def run(*args):
+            t0 = time.perf_counter()
+            out = fn(*args)
+            timed["s"] = time.perf_counter() - t0
+            return out
+
+        return run
+
+    estimator_numba.kernel = kernel
+    threads = numba.get_num_threads()
+    try:
+        for n_threads in sorted({1, threads}):
+            numba.set_num_threads(n_threads)
+            best = {n: np.inf for n in COUNTS}
+            for _ in range(a.calls + 1):  # the first round compiles or loads
+                for n in COUNTS:
+                    counts = np.full(geom.size, n, np.int64)
+                    estimator_numba.run_kernel(
+                        geom, profile, counts, active, frame.lighting, frame.depth,
+                        2, 0, params.depth_slope, False, True, 1.0, params.contact,
+                    )  # fmt: skip
+                    best[n] = min(best[n], timed["s"])
+            x = np.array(COUNTS, float) * active.size
+            y = np.array([best[n] for n in COUNTS])
+            slope, intercept = np.polyfit(x, y, 1)
+            rows = "  ".join(f"{n}: {best[n] * 1e3:.1f}" for n in COUNTS)
+            print(f"{w}x{h}, {active.size} pixels, {n_threads} thread(s), ms per call: {rows}")
+            image = np.zeros(h * w, np.int64)
+            image[geom.index[active]] = COUNTS[-1]
+            gather = gather_ns_per_sample(frame.lighting, image.reshape(h, w))
+            print(
+                f"  fit: {intercept * 1e9 / active.size:.0f} ns per pixel + "
+                f"{slope * 1e9:.1f} ns per sample (wall); gather roofline {gather:.2f} ns: "
+                f"{slope * 1e9 / gather:.1f}x per sample"
+            )
+    finally:
+        estimator_numba.kernel = original
+        numba.set_num_threads(threads)
+
+
+if __name__ == "__main__":
+    main()
