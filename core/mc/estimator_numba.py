@@ -21,8 +21,9 @@ area and slot share one 32-byte texel, so a sample's reads touch one cache
 line.
 
 Pixels are independent and each writes its own output row, so the result does
-not depend on the thread count or schedule (tiles stay bit-identical to a
-whole-frame run on the same backend).
+not depend on the thread count, the schedule or the order the pixels are
+visited in (32×32 tiles, :func:`tile_order`; tiles of core.tiling stay
+bit-identical to a whole-frame run on the same backend).
 
 This module imports numba at import time; import it through
 :mod:`core.mc.backend`, which does so lazily and falls back to NumPy.
