@@ -432,8 +432,13 @@ def test_tile_order_visits_every_pixel_once_tile_by_tile():
     from cvsss.core.mc.estimator_numba import TILE, tile_order
 
     rng = np.random.default_rng(2)
-    for w, h in ((100, 70), (64 * TILE + 5, 40 * TILE)):  # 16-bit and wider tile keys
-        flat = np.flatnonzero(rng.random(w * h) < 0.3)
+    # 70 tiles (16-bit keys); 301 × 220 = 66220 tiles (wider keys), sparse pixels of it.
+    for w, h, n in ((100, 70, None), (300 * TILE + 5, 220 * TILE, 50_000)):
+        assert (-(-w // TILE)) * (-(-h // TILE)) > (1 << 16) or n is None
+        if n is None:
+            flat = np.flatnonzero(rng.random(w * h) < 0.3)
+        else:
+            flat = np.unique(rng.integers(0, w * h, n))
         y, x = np.divmod(flat, w)
         order = tile_order(x, y, w)
         assert np.array_equal(np.sort(order), np.arange(flat.size))
