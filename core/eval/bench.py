@@ -11,9 +11,12 @@ run on this machine, so it means something on any machine:
     The roofline it is held against: the same number of random local
     gathers (3 float32 per sample, offsets uniform in a ±16-pixel square
     around the same SSS pixels) from the same lighting image with
-    ``np.take``, best of five, timed after every configuration of the size
-    with its counts; the size's roofline is the fastest of them (each
-    configuration's own is kept as ``own_gather_ns_per_sample``).
+    ``np.take``, best of three, timed right after each frame's passes with
+    that frame's counts, median over the same frames. Each ratio
+    ``ns_per_sample / gather_ns_per_sample`` thus compares two timings taken
+    within a second of each other (a roofline taken minutes apart moved the
+    ratio with the host's drift). The size's roofline in ``cost`` is the
+    fastest of the configurations' gathers.
 ``backend_default``, ``by_backend``
     The figures above are measured for every sampling backend that imports
     here (``SSSParams.backend``: NumPy, and the compiled numba kernel), side
@@ -22,8 +25,9 @@ run on this machine, so it means something on any machine:
     run on ``backend_default``, what ``backend = "auto"`` picks.
 ``frame_time_ms``
     Whole-frame time (``total_ms``) per backend, size (1280×720, 1920×1080,
-    2560×1440) and method, on the second frame of the sequence (history
-    present).
+    2560×1440) and method, on the first frame of the sequence (no history
+    yet: the adaptive methods take their initial count, an upper bound of a
+    steady frame's time; see :func:`section_frames`).
 ``samples_time_r2``
     R² of a linear fit of sampling-step time against samples taken over the
     frames of ``fixed`` N ∈ {8, 16, 32, 64}, ``as``, ``as_ocv``, ``as_ccv``.
@@ -260,6 +264,10 @@ class Job:
     repeats : int, times each recorded frame is processed from the same state
         (the processor's state is restored between repetitions); timings are the
         minimum, which discards a slow spell of the machine that hit one repetition
+    gather : bool, time the gather roofline (:func:`gather_ns_per_sample`, the
+        frame's own counts) right after each recorded frame: ``record["gather_ns"]``.
+        Pass and roofline then share the machine's state of that moment; this
+        host's speed drifts by tens of percent within minutes
     """
 
     label: str
@@ -272,6 +280,7 @@ class Job:
     separable: SeparableParams | None = None
     keep_last: bool = False
     repeats: int = 1
+    gather: bool = False
     records: list = dataclasses.field(default_factory=list)
     last: FrameResult | None = None
 
@@ -358,6 +367,10 @@ def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
                     else psnr(res.composite, job.reference(i), res.mask, job.params.exposure),
                 }
             )
+            if job.gather:
+                job.records[-1]["gather_ns"] = gather_ns_per_sample(
+                    frame.lighting, res.counts, job.params.seed, repeats=3
+                )
             job.last = res if job.keep_last else None
     return list(jobs)
 
@@ -533,7 +546,10 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
     """ns per sample, the gather roofline and the overhead fraction at ``cost_sizes``.
 
     Every backend of :func:`available_backends` is timed in the same interleaved run;
-    ``sizes`` holds the rows of the default backend, ``by_backend`` those of each.
+    ``sizes`` holds the rows of the default backend, ``by_backend`` those of each. A
+    row's ``ratio_to_gather`` divides its ns per sample by the gather roofline timed
+    right after each of its frames (median over the steady frames of both);
+    ``gather_ns_per_sample`` per size is the fastest of those gathers.
     """
     backends = available_backends(cfg)
     default = mc_backend.resolve("auto")
@@ -555,8 +571,8 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
                     m,
                     base.replace(backend=b),
                     frames.__getitem__,
-                    keep_last=True,
                     repeats=cfg.repeats,
+                    gather=True,
                 )
                 for b in backends
                 for m in COST_METHODS
@@ -569,8 +585,11 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
             samples, pass_ms = _median(st, "samples"), _median(st, "pass_ms")
             total_ms, update_ms = _median(st, "total_ms"), _median(st, "update_ms")
             ns = pass_ms * 1e6 / samples if samples else math.nan
-            own = gather_ns_per_sample(frames[-1].lighting, job.last.counts, cfg.seed)
-            job.last = None
+            # The roofline of the same frames, each timed right after that frame's
+            # passes with its counts: the ratio compares the two at one state of the
+            # machine. (It used to divide by the fastest gather of the whole section,
+            # timed minutes apart: a slow spell then showed as a worse ratio.)
+            gather = _median(st, "gather_ns")
             row = {
                 "samples": samples,
                 "spp": _median(st, "spp"),
@@ -578,28 +597,24 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
                 "update_ms": update_ms,
                 "total_ms": total_ms,
                 "ns_per_sample": ns,
-                "own_gather_ns_per_sample": own,
+                "gather_ns_per_sample": gather,
+                "ratio_to_gather": ns / gather,
                 "overhead_fraction": update_ms / total_ms,
                 "non_sampling_fraction": (total_ms - pass_ms) / total_ms,
             }
             out["by_backend"][job.params.backend].setdefault(size_key(size), {})[job.method] = row
-            rows.append((job, row))
-        # One roofline per size: the fastest of the gathers timed after each job (the
-        # same kind of reads, with that job's counts). A roofline is a bound; single
-        # timings of a few ms vary by 2x on a shared machine, and each ratio used to
-        # take its own.
-        roof = min(r["own_gather_ns_per_sample"] for _, r in rows)
-        out.setdefault("gather_ns_per_sample", {})[size_key(size)] = roof
-        for job, row in rows:
-            row["gather_ns_per_sample"] = roof
-            row["ratio_to_gather"] = row["ns_per_sample"] / roof
+            rows.append(row)
             _progress(
                 log,
                 start,
                 f"cost {size_key(size)} {job.params.backend:>5} {job.method:>6}: "
-                f"{row['ns_per_sample']:7.1f} ns/sample (gather {roof:5.2f}), update "
-                f"{row['update_ms']:6.1f} of {row['total_ms']:7.1f} ms",
+                f"{ns:7.1f} ns/sample (gather {gather:5.2f}: {ns / gather:5.1f}x), update "
+                f"{update_ms:6.1f} of {total_ms:7.1f} ms",
             )
+        # The size's roofline, a bound: the fastest gather of the section.
+        out.setdefault("gather_ns_per_sample", {})[size_key(size)] = min(
+            r["gather_ns_per_sample"] for r in rows
+        )
         out["sizes"][size_key(size)] = out["by_backend"][default][size_key(size)]
         if size == cfg.cost_sizes[-1]:
             out["breakdown"] = cost_breakdown(frames[-1], base)

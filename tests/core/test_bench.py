@@ -223,10 +223,13 @@ def test_run_jobs_warms_up_and_records_from_the_given_frames():
     frames = [scene_frame("flash", n, 24, 14) for n in range(1, 5)]
     base = SSSParams(target_variance=1e-8)  # counts above β_min once there is history
     late = bench.Job("late", "fixed", base, frames.__getitem__, first=1, record_from=2)
-    warm = bench.Job("warm", "as", base, frames.__getitem__, record_from=2)
+    warm = bench.Job("warm", "as", base, frames.__getitem__, record_from=2, gather=True)
     bench.run_jobs([late, warm], len(frames))
     assert [r["frame"] for r in late.records] == [3, 4]
     assert [r["frame"] for r in warm.records] == [3, 4]
+    # The gather roofline is timed after the recorded frames of the jobs that ask for it.
+    assert all(r["gather_ns"] > 0 for r in warm.records)
+    assert not any("gather_ns" in r for r in late.records)
     # The adaptive job had frames 1 and 2 of history: its counts left β_min.
     cold, _ = bench.run_sequence(frames[2:], "as", base)
     assert warm.records[0]["samples"] != cold[0]["samples"]
@@ -290,6 +293,11 @@ def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
     assert rows["fixed"]["update_ms"] < min(rows[m]["update_ms"] for m in bench.ADAPTIVE)
     # Both backends measured side by side; the default one (numba here) fills "sizes".
     by = r["cost"]["by_backend"]
+    # Each row holds its own roofline (timed after each of its frames); the size's is
+    # the fastest of them.
+    gathers = [row["gather_ns_per_sample"] for b in by.values() for row in b["32x18"].values()]
+    assert all(g > 0 for g in gathers) and len(set(gathers)) > 1
+    assert r["cost"]["gather_ns_per_sample"]["32x18"] == min(gathers)
     assert r["backend_default"] == r["cost"]["backend_default"] == "numba"
     assert set(by) == {"numpy", "numba"} and rows is by["numba"]["32x18"]
     assert r["cost_method"] == "as_ccv"
