@@ -5,8 +5,11 @@ Times the kernel call alone (``core.mc.estimator_numba.kernel``, inside
 kernel ``cycles``) with every SSS pixel at N ∈ {1, 2, 4, 8, 16, 32} samples,
 calls interleaved, minimum of ``--calls`` per N, on one thread and on all of
 them, and fits ``time = a·pixels + b·samples``. ``a`` is what a pixel costs
-besides its samples: its set-up and the latency of its first samples' reads,
-which nothing overlaps when a pixel takes few. ``b`` is printed next to the
+besides its samples: the per-task pre-pass (hash, channel maps, disk axes,
+tangent plane), the loads of its values and the start of each stage loop for
+its samples. It is work, not waiting on reads: batches that take their samples
+from consecutive pixels (a pixel's lone sample beside 31 others) cost as much
+per pixel (see the README's Performance section). ``b`` is printed next to the
 bench's gather roofline (``core.eval.bench.gather_ns_per_sample``, timed in
 the same run with the 32-spp counts). Run from the repo root:
 
