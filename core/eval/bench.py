@@ -15,7 +15,7 @@ run on this machine, so it means something on any machine:
     that frame's counts, median over the same frames. Each ratio
     ``ns_per_sample / gather_ns_per_sample`` thus compares two timings taken
     within a second of each other (a roofline taken minutes apart moved the
-    ratio with the host's drift). The size's roofline in ``cost`` is the
+    ratio with the machine's drift). The size's roofline in ``cost`` is the
     fastest of the configurations' gathers.
 ``backend_default``, ``by_backend``
     The figures above are measured for every sampling backend that imports
@@ -266,8 +266,8 @@ class Job:
         minimum, which discards a slow spell of the machine that hit one repetition
     gather : bool, time the gather roofline (:func:`gather_ns_per_sample`, the
         frame's own counts) right after each recorded frame: ``record["gather_ns"]``.
-        Pass and roofline then share the machine's state of that moment; this
-        host's speed drifts by tens of percent within minutes
+        Pass and roofline then share the machine's state of that moment (a shared
+        machine's speed can drift by tens of percent within minutes)
     """
 
     label: str
@@ -598,8 +598,8 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
             ns = pass_ms * 1e6 / samples if samples else math.nan
             # The roofline of the same frames, each timed right after that frame's
             # passes with its counts: the ratio compares the two at one state of the
-            # machine. (It used to divide by the fastest gather of the whole section,
-            # timed minutes apart: a slow spell then showed as a worse ratio.)
+            # machine. (Dividing by the fastest gather of the whole section, timed
+            # minutes apart, showed a slow spell between the two as a worse ratio.)
             gather = _median(st, "gather_ns")
             row = {
                 "samples": samples,
