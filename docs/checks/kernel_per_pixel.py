@@ -46,7 +46,7 @@ def main() -> None:
     timed = {}
     original = estimator_numba.kernel
 
-    def kernel(samples):
+    def kernel(samples, pixels=0):
         fn = estimator_numba.pixel_sums  # the parallel build at every count
 
         def run(*args):

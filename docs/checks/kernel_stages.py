@@ -81,7 +81,7 @@ def main() -> None:
                 spec = importlib.util.spec_from_file_location(path.stem, path)
                 module = importlib.util.module_from_spec(spec)
                 spec.loader.exec_module(module)
-                estimator_numba.kernel = lambda n, m=module: m.pixel_sums
+                estimator_numba.kernel = lambda n, p=0, m=module: m.pixel_sums
 
                 def run():
                     estimate_distant(

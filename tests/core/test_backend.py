@@ -276,15 +276,37 @@ def test_thread_count_does_not_change_the_result():
     from cvsss.core.mc import estimator_numba
 
     assert counts.sum() >= estimator_numba.PARALLEL_MIN_SAMPLES
-    before = estimator_numba.PARALLEL_MIN_SAMPLES
+    before, original, chosen = estimator_numba.PARALLEL_MIN_SAMPLES, estimator_numba.kernel, []
+
+    def spy(samples, pixels=0):
+        chosen.append(original(samples, pixels))
+        return chosen[-1]
+
     try:
-        estimator_numba.PARALLEL_MIN_SAMPLES = counts.sum() + 1
-        assert estimator_numba.kernel(int(counts.sum())) is estimator_numba.pixel_sums_serial
+        estimator_numba.PARALLEL_MIN_SAMPLES = 1 << 62
+        estimator_numba.kernel = spy
         serial = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
     finally:
         estimator_numba.PARALLEL_MIN_SAMPLES = before
+        estimator_numba.kernel = original
+    assert chosen == [estimator_numba.pixel_sums_serial]
     assert np.array_equal(serial.distant, many.distant)
     assert np.array_equal(serial.variance, many.variance)
+
+
+def test_the_kernel_build_follows_the_work_of_pixels_and_samples():
+    """Threads for a call's work, counting each pixel as PIXEL_SAMPLES samples."""
+    from cvsss.core.mc import estimator_numba as en
+
+    top = en.PARALLEL_MIN_SAMPLES
+    assert en.kernel(top) is en.pixel_sums
+    assert en.kernel(top - 1) is en.pixel_sums_serial
+    # Many pixels at one sample each: the pixels' own cost makes it worth the threads.
+    pixels = top // (en.PIXEL_SAMPLES + 1) + 1
+    assert en.kernel(pixels, pixels) is en.pixel_sums
+    assert en.kernel(pixels) is en.pixel_sums_serial
+    # A 32x32 tile at 16 spp stays serial.
+    assert en.kernel(16 * 1024, 1024) is en.pixel_sums_serial
 
 
 def test_other_profiles_run_on_numpy_with_the_numba_backend():
