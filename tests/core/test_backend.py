@@ -255,7 +255,7 @@ def test_tiles_equal_whole_image_on_numba_and_match_numpy():
         assert_same_result(a, b)
 
 
-def test_thread_count_does_not_change_the_result():
+def test_thread_count_does_not_change_the_result(monkeypatch):
     """Pixels are independent: one thread and all threads give the same bits."""
     frame = scene_frame("flash", 3, 256, 144)
     profile = frame_profile(frame, SSSParams())
@@ -276,19 +276,15 @@ def test_thread_count_does_not_change_the_result():
     from cvsss.core.mc import estimator_numba
 
     assert counts.sum() >= estimator_numba.PARALLEL_MIN_SAMPLES
-    before, original, chosen = estimator_numba.PARALLEL_MIN_SAMPLES, estimator_numba.kernel, []
+    original, chosen = estimator_numba.kernel, []
 
     def spy(samples, pixels=0):
         chosen.append(original(samples, pixels))
         return chosen[-1]
 
-    try:
-        estimator_numba.PARALLEL_MIN_SAMPLES = 1 << 62
-        estimator_numba.kernel = spy
-        serial = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
-    finally:
-        estimator_numba.PARALLEL_MIN_SAMPLES = before
-        estimator_numba.kernel = original
+    monkeypatch.setattr(estimator_numba, "PARALLEL_MIN_SAMPLES", 1 << 62)
+    monkeypatch.setattr(estimator_numba, "kernel", spy)
+    serial = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
     assert chosen == [estimator_numba.pixel_sums_serial]
     assert np.array_equal(serial.distant, many.distant)
     assert np.array_equal(serial.variance, many.variance)
