@@ -486,7 +486,7 @@ class SSSParams(_Params):
         advanced=True,
     )
     chunk_samples: int = param(
-        1 << 15,
+        1 << 16,
         help="Samples processed in one vectorised batch of the NumPy backend (cache-sized)",
         unit="samples",
         lo=1024,

@@ -124,6 +124,10 @@ from ..profiles.burley import BurleyProfile, pdf_from_table
 from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
 from . import backend as backends
 
+# The direction table's columns, contiguous: a strided column costs the sampling
+# loop several times a contiguous one.
+_DIR_X, _DIR_Y = (np.ascontiguousarray(col) for col in DIRECTIONS.T)
+
 
 @dataclass
 class DistantEstimate:
@@ -183,10 +187,12 @@ class Pixels:
     ws : (3, P) float32, γ_c/mass_c (profiles with a per-pixel weight scale)
     pscale, inv_d : (3, P) float32, Burley pdf table scale size/(truncate·d_c) and
         1/d_c (:func:`core.profiles.burley.pdf_from_table`); zeros for other profiles
-    frame : (P, 9) float32 or None, the disk axes N, T, B (:func:`disk_frame`) for the
-        disk kernel; rho_min : (P,) float32, half the pixel's footprint (scene units)
-    plane : (P, 3) float32 or None, the centre's tangent plane as an affine function
-        of the landing pixel's image coordinates (:func:`tangent_planes`)
+    frame : (9, P) float32 or None, the disk axes N, T, B (:func:`disk_frame`, one row
+        per component) for the disk kernel; rho_min : (P,) float32, half the pixel's
+        footprint (scene units)
+    plane : (3, P) float32 or None, the centre's tangent plane as an affine function
+        of the landing pixel's image coordinates (:func:`tangent_planes`, one row per
+        coefficient)
     direct : (P, 3) float32 or None, the direct part of B (``Geometry.direct``)
     aspect : float32, footprint width / height (one per camera): the vertical
         offset in pixels is the horizontal one times this
@@ -221,19 +227,31 @@ class Pixels:
     direct: np.ndarray | None = None
 
 
-def _offset(sx, sy, zq, px, py, zp, cx, cy, unit_x, unit_y, ortho: bool):
+def _offset(sx, sy, zq, centre, cx, cy, unit_x, unit_y, ortho: bool):
     """Camera-space x, y offset (scene units, float32) from the centre pixel (px, py) at
     depth zp to the screen point (sx, sy) at depth zq (perspective: through the
-    principal point (cx, cy); ortho: depth does not scale it)."""
+    principal point (cx, cy); ortho: depth does not scale it).
+
+    ``centre`` is the centre's term per sample, from :func:`_centre_terms`: (px, py)
+    in ortho, ((px − cx)·zp, (py − cy)·zp) in perspective.
+    """
+    ex, ey = centre
     if ortho:
-        return (sx - px) * unit_x, (sy - py) * unit_y
+        return (sx - ex) * unit_x, (sy - ey) * unit_y
     dx = (sx - cx) * zq
-    dx -= (px - cx) * zp
+    dx -= ex
     dx *= unit_x
     dy = (sy - cy) * zq
-    dy -= (py - cy) * zp
+    dy -= ey
     dy *= unit_y
     return dx, dy
+
+
+def _centre_terms(pix: Pixels, cx, cy, ortho: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) float32 twice: the centre's part of :func:`_offset`, once per pixel."""
+    if ortho:
+        return pix.x, pix.y
+    return (pix.x - cx) * pix.z, (pix.y - cy) * pix.z
 
 
 def active_pixels(
@@ -285,11 +303,12 @@ def active_pixels(
     f32 = np.float32
     frame = rho_min = plane = None
     if geom.surface is not None and geom.surface.normal is not None:
-        frame = disk_frame(np.take(geom.surface.normal, sel(geom.index), axis=0))
+        axes = disk_frame(np.take(geom.surface.normal, sel(geom.index), axis=0))
         rho_min = (0.5 * fw).astype(f32)
-        plane = tangent_planes(
-            geom.surface, frame[:, :3], sel(geom.x), sel(geom.y), sel(geom.depth)
-        )
+        plane = tangent_planes(geom.surface, axes[:, :3], sel(geom.x), sel(geom.y), sel(geom.depth))
+        # One contiguous row per component: the sampling loop repeats rows.
+        frame = np.ascontiguousarray(axes.T)
+        plane = np.ascontiguousarray(plane.T)
     return Pixels(
         counts=counts[active],
         hx=hx,
@@ -331,7 +350,7 @@ def estimate_distant(
     frame: int,
     seed: int,
     depth_slope: float,
-    chunk_samples: int = 1 << 15,
+    chunk_samples: int = 1 << 16,
     variance: bool = False,
     backend: str = "numpy",
     disk: bool = False,
@@ -350,7 +369,8 @@ def estimate_distant(
     frame, seed : int, select the per-pixel R2 offsets
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
     chunk_samples : int, samples per NumPy batch: small enough that a batch's
-        arrays stay in the CPU's cache (32768 samples ≈ 4 MB in all)
+        arrays stay in the CPU's caches (65536 samples ≈ 8 MB in all), large enough
+        that NumPy's cost per call is small (32768: 8 % slower at 640×360)
     variance : bool, also estimate the variance of Î's luminance from the samples
     backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.mc.backend`);
         numba runs the Burley profile, other profiles run on NumPy
@@ -485,9 +505,12 @@ def _numpy_sums(
     if surf is not None:
         unit_x, unit_y = (np.float32(v) for v in surf.unit)
         cx, cy = (np.float32(v) for v in surf.centre)
+        centre_x, centre_y = _centre_terms(pix, cx, cy, surf.ortho)
     fill_value = None
     if hidden_light < 1.0 and pix.direct is not None:
         fill_value = np.float32(-(1.0 - hidden_light)) * pix.direct.T
+    if disk:
+        normal_cm = np.ascontiguousarray(surf.normal.T)  # (3, H·W): one row per component
     objects = geom.objects
     touch = np.float32(contact) if objects is not None and contact > 0 else None
     for a, b in _chunks(pix.counts, chunk_samples):
@@ -508,9 +531,9 @@ def _numpy_sums(
         ch += u >= np.repeat(pix.edges[a:b, 2], c)
         flat = local * 3
         flat += ch
-        t = np.take(t_b, flat)
+        t = np.take(t_b, flat, mode="clip")
         t *= u
-        t += np.take(t_a, flat)
+        t += np.take(t_a, flat, mode="clip")
         mat = np.repeat(pix.mat[a:b], c)
         norm = None
         if burley:
@@ -521,33 +544,36 @@ def _numpy_sums(
             s *= size
             i = s.astype(np.int32)
             f = np.subtract(s, i, dtype=np.float32)
-            r = f * np.take(rcols[1], i)
-            r += np.take(rcols[0], i)
+            r = f * np.take(rcols[1], i, mode="clip")
+            r += np.take(rcols[0], i, mode="clip")
             np.minimum(r, trunc, out=r)
             slot_ch = mat * 3
             slot_ch += ch
-            r *= np.take(d_kc, slot_ch)
+            r *= np.take(d_kc, slot_ch, mode="clip")
             if surf is not None:
                 row = slot_ch.astype(np.intp) * rcols[0].shape[0]
                 row += i
-                norm = f * np.take(ncols[1], row)
-                norm += np.take(ncols[0], row)
+                norm = f * np.take(ncols[1], row, mode="clip")
+                norm += np.take(ncols[0], row, mode="clip")
                 # Rows that straddle another channel's truncation (a few per slot).
-                cut = s < np.take(ncols[2], row)
+                cut = s < np.take(ncols[2], row, mode="clip")
                 if cut.any():
                     norm[cut] -= np.take(ncols[3], row[cut])
-                norm *= np.take(inv_d_kc, slot_ch)
+                norm *= np.take(inv_d_kc, slot_ch, mode="clip")
         else:
             np.clip(t, 0.0, top, out=t)
             r = profile.sample(t, np.take(lo_flat, flat), np.take(hi_flat, flat), mat, ch)
             r = np.asarray(r, dtype=np.float32)
         rp = r * np.repeat(pix.inv_fw[a:b], c)
-        dirs = np.take(DIRECTIONS, (vq >> np.uint32(32 - DIRECTION_BITS)).astype(np.intp), axis=0)
+        bins = (vq >> np.uint32(32 - DIRECTION_BITS)).astype(np.intp)
         px = np.repeat(pix.x[a:b], c)
         py = np.repeat(pix.y[a:b], c)
-        qx = rp * dirs[:, 0]
+        centre = None
+        if surf is not None:
+            centre = np.repeat(centre_x[a:b], c), np.repeat(centre_y[a:b], c)
+        qx = rp * np.take(_DIR_X, bins, mode="clip")
         qx += px
-        qy = rp * dirs[:, 1]
+        qy = rp * np.take(_DIR_Y, bins, mode="clip")
         if pix.aspect != 1:
             qy *= pix.aspect
         qy += py
@@ -570,16 +596,16 @@ def _numpy_sums(
         q = iy * w
         q += ix
         q = np.where(inside, q, centre_idx)
-        ok = inside & (np.take(slots, q) == mat)
-        zq = np.take(depth32, q)
+        ok = inside & (np.take(slots, q, mode="clip") == mat)
+        zq = np.take(depth32, q, mode="clip")
         zp = np.repeat(pix.z[a:b], c)
         tol = slope * r
         near = np.abs(zq - zp) <= tol
         if pix.plane is not None:
             # Or within the tolerance of the centre's tangent plane (a tilted surface).
-            w_pl = np.repeat(pix.plane[a:b, 0], c) * fx
-            w_pl += np.repeat(pix.plane[a:b, 1], c) * fy
-            w_pl += np.repeat(pix.plane[a:b, 2], c)
+            w_pl = np.repeat(pix.plane[0, a:b], c) * fx
+            w_pl += np.repeat(pix.plane[1, a:b], c) * fy
+            w_pl += np.repeat(pix.plane[2, a:b], c)
             if surf.ortho:
                 near |= np.abs(zq - w_pl) <= tol
             else:
@@ -592,11 +618,11 @@ def _numpy_sums(
         # under it where the two touch: unlit (module doc, *Objects*).
         touching = None
         if objects is not None:
-            other = np.take(objects, q) != np.repeat(np.take(objects, pix.idx[a:b]), c)
+            other = np.take(objects, q, mode="clip") != np.repeat(np.take(objects, pix.idx[a:b]), c)
             other &= inside
             ok &= ~other
             if touch is not None:
-                touching = _touching(other, qx, qy, zq, px, py, zp, r, touch, pix, surf, a, c)
+                touching = _touching(other, qx, qy, zq, zp, centre, r, touch, pix, surf, local)
                 if not touching.any():
                     touching = None
         # Hidden surface: a rejected sample on the image that landed on the background or
@@ -625,7 +651,7 @@ def _numpy_sums(
         q = np.where(ok, q, centre_idx)
         diff = np.empty((3, n), np.float32)
         for ci in range(3):
-            np.take(light_cm[ci], q, out=diff[ci])
+            np.take(light_cm[ci], q, out=diff[ci], mode="clip")
         if touching is not None:
             diff[:, touching] = np.float32(0.0)
         centre_rep = np.repeat(centre_light[:, a:b], c, axis=1)
@@ -636,10 +662,10 @@ def _numpy_sums(
             # against the centre's; the profile at that distance over the profile
             # at r (R = pdf/(2πr)) times the area Jacobian.
             zq = np.where(ok, zq, zp)
-            area_q = np.take(surf.area, q)
+            area_q = np.take(surf.area, q, mode="clip")
             if touching is not None:
-                zq, area_q = _on_plane(touching, zq, area_q, qx, qy, zp, pix, surf, a, c)
-            dx, dy = _offset(qx, qy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
+                zq, area_q = _on_plane(touching, zq, area_q, qx, qy, zp, pix, surf, local)
+            dx, dy = _offset(qx, qy, zq, centre, cx, cy, unit_x, unit_y, surf.ortho)
             if surf.ortho:
                 plane = np.repeat(pix.fwfh[a:b], c)
             else:
@@ -660,11 +686,11 @@ def _numpy_sums(
                 # sample's value B(q) counts G times against the centre's B(p). Δ runs
                 # to the landing pixel's own point (its centre), so that on a plane it
                 # lies in the plane and G = 1.
-                ex, ey = _offset(fx, fy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
-                gain = _disk_gain(ex, ey, dz, q, surf.normal, pix, a, c)
-                if touching is not None:
-                    gain[touching] = np.float32(1.0)  # on the centre's plane: G = 1
-                diff *= np.where(ok, gain, np.float32(1.0))
+                ex, ey = _offset(fx, fy, zq, centre, cx, cy, unit_x, unit_y, surf.ortho)
+                # A rejected sample reads the centre (G = 1); a touching one lies on
+                # the centre's plane (G = 1).
+                weighed = ok if touching is None else ok & ~touching
+                diff *= _disk_gain(ex, ey, dz, q, normal_cm, pix, a, c, weighed)
             diff -= centre_rep
             # w_c = Σγ·pdf_c(dist)/Σ_c' pdf_c'(r) · (r/dist) · area_q/plane
             scale = np.repeat(pix.g_s[a:b], c)
@@ -713,40 +739,56 @@ def _numpy_sums(
     return sums, var, fallback
 
 
-def _touching(other, qx, qy, zq, px, py, zp, r, touch, pix: Pixels, surf, a: int, c):
+def _touching(other, qx, qy, zq, zp, centre, r, touch, pix: Pixels, surf, local):
     """(n,) bool: samples on ``other`` objects within ``touch·r`` of the centre's tangent plane.
 
     The height of the landing point above the plane through x_p with the centre's
     normal, ``|n·(x_q − x_p)|``; without normals (planar weights) the plane faces
-    the camera and the height is the depth difference.
+    the camera and the height is the depth difference. Only the ``other`` samples
+    (a few percent) are computed; ``local`` holds each sample's pixel (index into
+    ``pix``).
     """
+    at = np.flatnonzero(other)
+    touching = np.zeros(other.size, bool)
+    if at.size == 0:
+        return touching
+    zq = np.take(zq, at)
     with np.errstate(invalid="ignore", over="ignore"):
-        dz = zq - zp
+        dz = zq - np.take(zp, at)
         if pix.frame is None:
             h = np.abs(dz)
         else:
             unit_x, unit_y = (np.float32(v) for v in surf.unit)
             cx, cy = (np.float32(v) for v in surf.centre)
-            dx, dy = _offset(qx, qy, zq, px, py, zp, cx, cy, unit_x, unit_y, surf.ortho)
-            f = pix.frame[a : a + c.size]
-            h = dx * np.repeat(f[:, 0], c)
-            h += dy * np.repeat(f[:, 1], c)
-            h += dz * np.repeat(f[:, 2], c)
+            centre = np.take(centre[0], at), np.take(centre[1], at)
+            dx, dy = _offset(
+                np.take(qx, at), np.take(qy, at), zq, centre, cx, cy, unit_x, unit_y, surf.ortho
+            )
+            li = np.take(local, at)
+            h = dx * np.take(pix.frame[0], li)
+            h += dy * np.take(pix.frame[1], li)
+            h += dz * np.take(pix.frame[2], li)
             h = np.abs(h)
-        return other & (h <= touch * r)
+        touching[at] = h <= touch * np.take(r, at)
+    return touching
 
 
-def _on_plane(touching, zq, area_q, qx, qy, zp, pix: Pixels, surf, a: int, c):
+def _on_plane(touching, zq, area_q, qx, qy, zp, pix: Pixels, surf, local):
     """Depth and area element of the touching samples' points on the centre's tangent plane.
 
     The plane's depth along the sample's own ray (its continuous screen position;
     the centre's depth where the pixel has no plane) and the centre's area element,
     scaled by (depth ratio)² in perspective (the plane has the centre's normal).
+    Returns copies of ``zq`` and ``area_q`` with the touching samples' values;
+    ``local`` holds each sample's pixel (index into ``pix``).
     """
-    w = np.repeat(pix.plane[a : a + c.size, 0], c) * qx
-    w += np.repeat(pix.plane[a : a + c.size, 1], c) * qy
-    w += np.repeat(pix.plane[a : a + c.size, 2], c)
-    area_p = np.repeat(np.take(surf.area, pix.idx[a : a + c.size]), c)
+    at = np.flatnonzero(touching)
+    li = np.take(local, at)
+    zp = np.take(zp, at)
+    w = np.take(pix.plane[0], li) * np.take(qx, at)
+    w += np.take(pix.plane[1], li) * np.take(qy, at)
+    w += np.take(pix.plane[2], li)
+    area_p = np.take(surf.area, np.take(pix.idx, li))
     with np.errstate(divide="ignore", invalid="ignore"):
         if surf.ortho:
             zh = np.where(np.isfinite(w), w, zp)
@@ -756,7 +798,10 @@ def _on_plane(touching, zq, area_q, qx, qy, zp, pix: Pixels, surf, a: int, c):
             ratio = zh / zp
             area_h = area_p * ratio
             area_h *= ratio
-    return np.where(touching, zh, zq), np.where(touching, area_h, area_q)
+    zq, area_q = zq.copy(), area_q.copy()
+    zq[at] = zh
+    area_q[at] = area_h
+    return zq, area_q
 
 
 def tangent_planes(surf, normal, x, y, depth) -> np.ndarray:
@@ -817,39 +862,70 @@ def disk_frame(normal: np.ndarray) -> np.ndarray:
     return out
 
 
-def _disk_gain(dx, dy, dz, q, normal, pix: Pixels, a: int, c) -> np.ndarray:
+def _disk_gain(dx, dy, dz, q, normal_cm, pix: Pixels, a: int, c, weighed) -> np.ndarray:
     """Cycles' disk kernel over the surface kernel, ``G = |Δ|·Σ_a m_a/ρ_a`` (module doc).
 
     Δ = (dx, dy, dz) the offset between the two surface points, axes a = N, T, B
     of the centre (picked with probability ½, ¼, ¼), ρ_a the offset's distance
     from the axis, clamped at half a pixel, m_a the power heuristic of
-    ``pick_a·|a·N_q|`` with N_q the landing pixel's normal.
+    ``pick_a·|a·N_q|`` with N_q the landing pixel's normal (``normal_cm``: (3, H·W),
+    one row per component). 1 where ``weighed`` is false.
     """
-    f = np.repeat(pix.frame[a : a + c.size], c, axis=0)
-    nq = np.take(normal, q, axis=0)
-    lo = np.repeat(pix.rho_min[a : a + c.size], c)
-    along = []
+    n = dx.size
+    axes = [np.repeat(pix.frame[j, a : a + c.size], c) for j in range(9)]
+    nq = [np.take(normal_cm[j], q, mode="clip") for j in range(3)]
+    tmp = np.empty(n, np.float32)
+
+    def dot(x, y, z, ax, ay, az):  # (x·ax + y·ay) + z·az, in float32
+        out = x * ax
+        out += np.multiply(y, ay, out=tmp)
+        out += np.multiply(z, az, out=tmp)
+        return out
+
+    sq = []
     weight = []
     for axis, pick in ((0, 0.5), (1, 0.25), (2, 0.25)):
-        ax, ay, az = f[:, 3 * axis], f[:, 3 * axis + 1], f[:, 3 * axis + 2]
-        along.append(dx * ax + dy * ay + dz * az)
-        cos = np.abs(nq[:, 0] * ax + nq[:, 1] * ay + nq[:, 2] * az)
-        w = cos * np.float32(pick)
-        weight.append(w * w)
-    total = weight[0] + weight[1] + weight[2]
+        ax, ay, az = axes[3 * axis : 3 * axis + 3]
+        along = dot(dx, dy, dz, ax, ay, az)
+        along *= along
+        sq.append(along)
+        w = dot(nq[0], nq[1], nq[2], ax, ay, az)
+        np.abs(w, out=w)
+        w *= np.float32(pick)
+        w *= w
+        weight.append(w)
+    total = weight[0] + weight[1]
+    total += weight[2]
     # G = Σ_a w_a·(|Δ|/ρ_a)/total from q_a = max(ρ_a², ρ_min²)/|Δ|² with two divisions
     # (the compiled kernel's operations, in its order).
-    sq = [a * a for a in along]
-    l2 = sq[0] + sq[1] + sq[2]
-    lo2 = lo * lo
+    s01 = sq[0] + sq[1]
+    l2 = s01 + sq[2]
+    lo2 = np.repeat(pix.rho_min[a : a + c.size], c)
+    lo2 *= lo2
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        il2 = np.float32(1.0) / l2
-        q = [np.maximum(sq[(j + 1) % 3] + sq[(j + 2) % 3], lo2) * il2 for j in range(3)]
-        big = np.float32(1.0) / (q[0] * q[1] * q[2] * (total * total))
-        g = weight[0] * np.sqrt(q[1] * q[2] * big)
-        g += weight[1] * np.sqrt(q[2] * q[0] * big)
-        g += weight[2] * np.sqrt(q[0] * q[1] * big)
-    return np.where((total > 0) & (l2 > 0), g, np.float32(1.0))
+        il2 = np.divide(np.float32(1.0), l2)
+        qa = []
+        for pair in (sq[1] + sq[2], sq[2] + sq[0], s01):
+            np.maximum(pair, lo2, out=pair)
+            pair *= il2
+            qa.append(pair)
+        q01 = qa[0] * qa[1]
+        big = q01 * qa[2]
+        big *= np.multiply(total, total, out=tmp)
+        np.divide(np.float32(1.0), big, out=big)
+        g = np.multiply(qa[1], qa[2], out=il2)
+        g *= big
+        np.sqrt(g, out=g)
+        g *= weight[0]
+        for x, y, w in ((qa[2], qa[0], weight[1]), (q01, None, weight[2])):
+            t = x if y is None else np.multiply(x, y, out=tmp)
+            t *= big
+            np.sqrt(t, out=t)
+            t *= w
+            g += t
+    weighed = weighed & (total > 0)
+    weighed &= l2 > 0
+    return np.where(weighed, g, np.float32(1.0))
 
 
 def _pdf(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, a: int, c) -> np.ndarray:
