@@ -370,7 +370,7 @@ def estimate_distant(
     depth_slope : float, follow-surface tolerance (see SSSParams.depth_slope)
     chunk_samples : int, samples per NumPy batch: small enough that a batch's
         arrays stay in the CPU's caches (65536 samples ≈ 8 MB in all), large enough
-        that NumPy's cost per call is small (32768: 8 % slower at 640×360)
+        that NumPy's cost per call is small (32768 took 7 % longer at 640×360)
     variance : bool, also estimate the variance of Î's luminance from the samples
     backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.mc.backend`);
         numba runs the Burley profile, other profiles run on NumPy
