@@ -9,9 +9,12 @@ machine hits both. Each module runs with its own default batch size. Prints ns
 per sample of the whole ``estimate_distant`` call (minimum, 25th percentile and
 median of the calls), and whether both give the same bits in each distance mode
 (``cycles``, ``surface``, ``planar``; with the variance and a hidden light of
-0.3 in the first). Run from the repo root:
+0.3 in the first). ``--profile dipole`` or ``artist`` puts that profile on every
+material (the dipole with the measured skin1 and marble of the scene's two slots;
+the compiled kernel runs Burley only, so these always run on NumPy). Run
+from the repo root:
 
-    .venv/bin/python docs/checks/numpy_versus.py REV [WxH ...] [--calls N]
+    .venv/bin/python docs/checks/numpy_versus.py REV [WxH ...] [--calls N] [--profile P]
 """
 
 import argparse
@@ -26,8 +29,9 @@ import numpy as np
 
 from cvsss.core.geometry import prepare
 from cvsss.core.mc import estimator
-from cvsss.core.methods import make_processor
+from cvsss.core.methods import MethodOptions, make_processor
 from cvsss.core.params import SSSParams
+from cvsss.core.profiles import PROFILE_NAMES, ProfileChoice
 from cvsss.core.synthetic import scene_frame
 
 
@@ -47,11 +51,14 @@ def load_revision(rev: str, folder: Path):
     return module
 
 
-def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
+def compare(modules: dict, size: tuple[int, int], calls: int, kind: str) -> None:
     w, h = size
     params = SSSParams()
     frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
-    proc = make_processor("as_ccv", params)
+    # The dipole needs measured materials: the synthetic scene's skin and marble slots.
+    presets = ((1, "skin1"), (2, "marble")) if kind == "dipole" else ()
+    choice = ProfileChoice(profile=kind, slot_materials=presets)
+    proc = make_processor("as_ccv", params, MethodOptions(profile=choice))
     for frame in frames:
         result = proc.process(frame)
     frame = frames[-1]
@@ -75,7 +82,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
             geom, frame.lighting, frame.depth, profile, counts, **common, **kw
         )
 
-    print(f"{w}x{h}: {int((counts > 0).sum())} pixels, {total} samples")
+    print(f"{w}x{h}, {kind}: {int((counts > 0).sum())} pixels, {total} samples")
     first = next(iter(modules.values()))
     for mode in modes:
         a = run(first, mode)
@@ -107,11 +114,12 @@ def main() -> None:
     ap.add_argument("rev")
     ap.add_argument("sizes", nargs="*", default=["640x360", "1280x720"])
     ap.add_argument("--calls", type=int, default=9)
+    ap.add_argument("--profile", choices=PROFILE_NAMES, default="burley")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": estimator}
         for size in a.sizes:
-            compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, a.profile)
 
 
 if __name__ == "__main__":
