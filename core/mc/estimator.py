@@ -745,8 +745,7 @@ def _touching(other, qx, qy, zq, zp, centre, r, touch, pix: Pixels, surf, local)
     The height of the landing point above the plane through x_p with the centre's
     normal, ``|n·(x_q − x_p)|``; without normals (planar weights) the plane faces
     the camera and the height is the depth difference. Only the ``other`` samples
-    (a few percent) are computed; ``local`` holds each sample's pixel (index into
-    ``pix``).
+    are computed; ``local`` holds each sample's pixel (index into ``pix``).
     """
     at = np.flatnonzero(other)
     touching = np.zeros(other.size, bool)
@@ -913,16 +912,16 @@ def _disk_gain(dx, dy, dz, q, normal_cm, pix: Pixels, a: int, c, weighed) -> np.
         big = q01 * qa[2]
         big *= np.multiply(total, total, out=tmp)
         np.divide(np.float32(1.0), big, out=big)
-        g = np.multiply(qa[1], qa[2], out=il2)
-        g *= big
-        np.sqrt(g, out=g)
-        g *= weight[0]
-        for x, y, w in ((qa[2], qa[0], weight[1]), (q01, None, weight[2])):
-            t = x if y is None else np.multiply(x, y, out=tmp)
-            t *= big
-            np.sqrt(t, out=t)
-            t *= w
-            g += t
+
+        def term(prod, w):  # w·sqrt(prod·big), in place in prod
+            prod *= big
+            np.sqrt(prod, out=prod)
+            prod *= w
+            return prod
+
+        g = term(np.multiply(qa[1], qa[2], out=il2), weight[0])
+        g += term(np.multiply(qa[2], qa[0], out=tmp), weight[1])
+        g += term(q01, weight[2])
     weighed = weighed & (total > 0)
     weighed &= l2 > 0
     return np.where(weighed, g, np.float32(1.0))

@@ -561,7 +561,7 @@ def _pixel_sums(
                 # when nb is short of its vector width, measured ~12 % slower per sample
                 # at 21 spp. A batch of at most HALF samples runs HALF entries (one
                 # vector of 8 float32 lanes), a larger one all BATCH: at 1–8 spp the
-                # pass took 9–13 % less time than over all BATCH (the same at 34 spp).
+                # pass took 10–16 % less time than over all BATCH (the same at 34 spp).
                 # Entries past nb hold the previous batch's values (zeros at first);
                 # what they compute is never read.
                 if mode != PLANAR:
