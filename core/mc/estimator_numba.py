@@ -79,6 +79,7 @@ _DIR_SHIFT = np.uint64(32 - DIRECTION_BITS)
 _LCG_A = np.uint64(1664525)
 _LCG_C = np.uint64(1013904223)
 _S16 = np.uint64(16)
+_M16 = np.uint64(0xFFFF)
 _ONE, _TWO, _THREE, _FOUR = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4)
 _FIVE, _SIX, _SEVEN, _EIGHT = np.uint64(5), np.uint64(6), np.uint64(7), np.uint64(8)
 
@@ -250,6 +251,10 @@ def _pixel_sums(
         b_touch = np.zeros(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
         idch = np.empty(3, np.float32)
+        # R2 word offsets of a batch's lanes: j·a mod 2**32.
+        lane_a = np.empty(BATCH, np.uint64)
+        for j in range(BATCH):
+            lane_a[j] = (np.uint64(j) * _A) & _M32
         dch = np.empty(3, np.float32)
         first = task * PIXELS_PER_TASK
         last = min(n, first + PIXELS_PER_TASK)
@@ -410,6 +415,13 @@ def _pixel_sums(
             f0 = np.float32(-(one - hidden)) * direct[g, 0]
             f1 = np.float32(-(one - hidden)) * direct[g, 1]
             f2 = np.float32(-(one - hidden)) * direct[g, 2]
+            # The pixel's tail maps per channel (offset, slope), for stage 1a's selects.
+            tm00 = t_map[li, 0, 0]
+            tm01 = t_map[li, 0, 1]
+            tm02 = t_map[li, 0, 2]
+            tm10 = t_map[li, 1, 0]
+            tm11 = t_map[li, 1, 1]
+            tm12 = t_map[li, 1, 2]
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -422,21 +434,32 @@ def _pixel_sums(
                 # and texel positions, the second reads them. A read that misses L1
                 # then waits beside the other samples' reads, not at the head of a
                 # long chain of arithmetic (measured 7 % less time per sample).
-                # Stage 1a: R2 point, channel, position in the radius table.
-                for j in range(nb):
-                    kk = np.uint64(k0 + j)
-                    u = np.float32((hxi + kk * _A) & _M32) * inv32
-                    if u > top:
-                        u = top
-                    ch = 0
-                    if u >= e1:
-                        ch = 1
-                    if u >= e2:
-                        ch = 2
-                    t = t_map[li, 1, ch] * u + t_map[li, 0, ch]
+                # Stage 1a: R2 point, channel, position in the radius table. Written so
+                # that the compiler vectorises it (measured 3-4 % less time per call at
+                # 34 spp): no multiply of 64-bit integers (the batch's R2 words are its
+                # first plus a per-lane constant), the word turned into float32 through
+                # its two exact 16-bit halves (AVX2 has no vector conversion from 64-bit
+                # or unsigned integers; one rounding, so the same float32), the channel
+                # and its tail map by selects, and like stage 3 over whole vectors
+                # (entries past nb are never read).
+                lanes1 = HALF if nb <= HALF else BATCH
+                base_u = (hxi + np.uint64(k0) * _A) & _M32
+                for j in range(lanes1):
+                    v = (base_u + lane_a[j]) & _M32
+                    u = np.float32(np.int32(v >> _S16)) * np.float32(65536.0)
+                    u = (u + np.float32(np.int32(v & _M16))) * inv32
+                    u = min(u, top)
+                    # e1 <= e2, so the channel is the number of edges u passed.
+                    hi1 = u >= e1
+                    hi2 = u >= e2
+                    sl = tm11 if hi1 else tm10
+                    sl = tm12 if hi2 else sl
+                    of = tm01 if hi1 else tm00
+                    of = tm02 if hi2 else of
+                    t = sl * u + of
                     t = min(max(t, zero), one)
                     fb[_ROW_T + j] = np.sqrt(t) * size
-                    b_ch[j] = ch
+                    b_ch[j] = np.int64(hi1) + np.int64(hi2)
                 # Stage 1b: radius (and mixture density) from the tables, screen position.
                 for j in range(nb):
                     kk = np.uint64(k0 + j)
