@@ -406,7 +406,8 @@ def estimate_distant(
     ):
         from .estimator_numba import run_kernel
 
-        sums, var_sums, fallback = run_kernel(
+        # The kernel adds each pixel's mean to ``distant`` itself.
+        var_sums, fallback = run_kernel(
             geom,
             profile,
             counts,
@@ -420,6 +421,7 @@ def estimate_distant(
             disk,
             hidden_light,
             contact,
+            distant=distant,
         )
     else:
         pix = active_pixels(geom, profile, counts, active, frame, seed)
@@ -436,10 +438,10 @@ def estimate_distant(
             hidden_light,
             contact,
         )
-    if active.size == geom.size:
-        distant += sums / act_counts[:, None]
-    else:
-        distant[active] += sums / act_counts[:, None]
+        if active.size == geom.size:
+            distant += sums / act_counts[:, None]
+        else:
+            distant[active] += sums / act_counts[:, None]
     spread = None
     if variance:
         var_sum = np.zeros((geom.size, 2))

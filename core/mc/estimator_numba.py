@@ -170,8 +170,9 @@ def _pixel_sums(
     cx64,
     cy64,
     want_var,
+    distant,
 ):
-    """Per-pixel sums of the weighted differences of the P active SSS pixels.
+    """Adds to ``distant`` the mean weighted difference of each of the P active SSS pixels.
 
     Does, per pixel, what :func:`core.mc.estimator.active_pixels` does with
     arrays (hash, channel edges, the affine map u ↦ tail value, float32
@@ -213,15 +214,17 @@ def _pixel_sums(
     mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera;
         ux64, uy64, cx64, cy64 : the same in float64 (the tangent planes)
     want_var : bool, accumulate luminance sums for the variance
+    distant : (G, 3) float64, written in place: row ``active[i]`` gains
+        Σ_k w_c·(B_c(q_k) − B_c(p)) / m, the pixel's sum over its m samples divided
+        by m, as :func:`core.mc.estimator.estimate_distant` adds the NumPy sums (the
+        same float64 operations)
 
     Returns
     -------
-    sums : (P, 3) float64, Σ_k w_c·(B_c(q_k) − B_c(p))
     var : (P, 2) float64, Σ y and Σ y² of the luminance of those terms
     fallback : (P,) int64, samples that fell back (core pixels only)
     """
     n = active.shape[0]
-    sums = np.zeros((n, 3))
     var = np.zeros((n, 2))
     fallback = np.zeros(n, np.int64)
     inv32 = np.float32(2.0**-32)
@@ -716,13 +719,14 @@ def _pixel_sums(
                         y64 = np.float64(y)
                         v0 += y64
                         v1 += y64 * y64
-            sums[i, 0] = s0
-            sums[i, 1] = s1
-            sums[i, 2] = s2
+            mf = np.float64(m)
+            distant[g, 0] += s0 / mf
+            distant[g, 1] += s1 / mf
+            distant[g, 2] += s2 / mf
             var[i, 0] = v0
             var[i, 1] = v1
             fallback[i] = nfb
-    return sums, var, fallback
+    return var, fallback
 
 
 #: Parallel over pixels; for large frames.
@@ -833,11 +837,17 @@ def run_kernel(
     disk=False,
     hidden_light=1.0,
     contact=0.0,
+    *,
+    distant,
 ):
-    """Per-pixel sums of the ``active`` SSS pixels of ``geom`` with the compiled kernel.
+    """The ``active`` SSS pixels of ``geom`` with the compiled kernel.
 
-    Returns what :func:`core.mc.estimator._numpy_sums` returns: (P, 3) sums,
-    (P, 2) luminance sums (None without ``variance``) and the fall-back count.
+    Adds each active pixel's mean weighted difference to its row of ``distant``
+    ((G, 3) float64, in place; see pixel_sums): in the kernel, where a pixel's
+    sums are at hand, instead of dividing and scattering (P, 3) sums afterwards
+    (1.2 ms at 640×360, 5.7 ms through NumPy's fancy indexing when some pixels
+    take no samples, against ~60 ms for the samples). Returns the (P, 2)
+    luminance sums (None without ``variance``) and the fall-back count.
     """
     f32 = np.float32
     h, w = geom.shape
@@ -860,7 +870,7 @@ def run_kernel(
         surf is not None,
     )
     first = active[0]
-    sums, var, fb = kernel(int(counts[active].sum()), active.size)(
+    var, fb = kernel(int(counts[active].sum()), active.size)(
         active,
         tile_order(geom.x[active], geom.y[active], full_w),
         counts,
@@ -912,8 +922,9 @@ def run_kernel(
         float(centre[0]),
         float(centre[1]),
         variance,
+        distant,
     )
-    return sums, (var if variance else None), int(fb.sum())
+    return (var if variance else None), int(fb.sum())
 
 
 def warm_up() -> None:
@@ -981,6 +992,7 @@ def _warm(fn) -> None:
         0.0,
         0.0,
         True,
+        np.zeros((1, 3)),
     )
 
 

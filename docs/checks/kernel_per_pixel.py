@@ -69,6 +69,7 @@ def main() -> None:
                     estimator_numba.run_kernel(
                         geom, profile, counts, active, frame.lighting, frame.depth,
                         2, 0, params.depth_slope, False, True, 1.0, params.contact,
+                        distant=np.zeros((geom.size, 3)),
                     )  # fmt: skip
                     best[n] = min(best[n], timed["s"])
             x = np.array(COUNTS, float) * active.size

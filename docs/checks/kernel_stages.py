@@ -35,7 +35,7 @@ STAGES = (
     "                # Stage 4: gather and sum",
 )
 LOOP = "            for k0 in range(1, m + 1, BATCH):"
-END = "            sums[i, 0] = s0"
+END = "            mf = np.float64(m)"
 # What each cut copy adds to its sum so that the cut stage's stores stay live.
 KEEP = (
     "            s0 += pa + nz + t_map[li, 0, 2]\n",

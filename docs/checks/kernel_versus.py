@@ -6,14 +6,18 @@ with the default sample kernel (``cycles``) and the sample counts of a steady
 ``as_ccv`` frame (frame 3, history from frames 1–2), calls interleaved, so a
 slow spell of a shared machine hits both. Prints ns per sample of the whole
 ``run_kernel`` call (minimum, 25th percentile and median of the calls) and
-whether both give the same bits. REV must have the current ``run_kernel``
-signature (6ff9b0c or later). Run from the repo root:
+whether both give the same bits: each pixel's mean (a revision whose kernel
+returned sums has them divided by the counts after the call, as
+``estimate_distant`` then did, inside the timing), the luminance sums and the
+fall-back count. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
+or later. Run from the repo root:
 
     .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N]
 """
 
 import argparse
 import importlib.util
+import inspect
 import subprocess
 import tempfile
 import time
@@ -62,7 +66,15 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     tail = (False, True, params.hidden_light, params.contact)
 
     def run(module):
-        return module.run_kernel(geom, profile, counts, active, *args, *tail)
+        distant = np.zeros((geom.size, 3))
+        if "distant" in inspect.signature(module.run_kernel).parameters:
+            var, fallback = module.run_kernel(
+                geom, profile, counts, active, *args, *tail, distant=distant
+            )
+        else:  # before 2026-11-26 the kernel returned sums, divided afterwards
+            sums, var, fallback = module.run_kernel(geom, profile, counts, active, *args, *tail)
+            distant[active] += sums / counts[active][:, None]
+        return distant, var, fallback
 
     outputs = {name: run(module) for name, module in modules.items()}  # compiles
     times = {name: [] for name in modules}

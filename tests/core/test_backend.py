@@ -478,11 +478,15 @@ def test_kernel_results_do_not_depend_on_the_visiting_order(monkeypatch):
 
     def run():
         args = (frame.lighting, frame.depth, 2, 0, 2.0, True, True, 0.75, 0.5)
-        return en.run_kernel(geom, profile, counts, active, *args)
+        distant = np.zeros((geom.size, 3))
+        var, fallback = en.run_kernel(geom, profile, counts, active, *args, distant=distant)
+        return distant, var, fallback
 
     tiled = run()
     monkeypatch.setattr(en, "tile_order", lambda x, y, w: np.arange(x.size)[::-1].copy())
     reverse = run()
     assert np.array_equal(tiled[0], reverse[0])
+    # It added the pixels' means (a pixel whose samples were all rejected adds 0).
+    assert np.count_nonzero(np.any(tiled[0][active] != 0.0, axis=1)) > active.size // 2
     assert np.array_equal(tiled[1], reverse[1])
     assert tiled[2] == reverse[2]
