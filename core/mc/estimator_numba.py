@@ -502,47 +502,55 @@ def _pixel_sums(
                     fb[_ROW_K + j] = texel[q8 + _FIVE]
                     fb[_ROW_FX + j] = fx
                     fb[_ROW_FY + j] = fy
-                # Stage 2b: the follow-surface tests.
+                # Stage 2b: the follow-surface tests. First the accept test for whole
+                # vectors, without a branch (vectorised); entries past nb are never read.
+                lanes2 = HALF if nb <= HALF else BATCH
+                for j in range(lanes2):
+                    zq = fb[_ROW_ZQ + j]
+                    tol = slope * fb[_ROW_R + j]
+                    near = abs(zq - zp) <= tol
+                    # Or within the tolerance of the centre's tangent plane.
+                    wpl = pa * fb[_ROW_FX + j] + pb * fb[_ROW_FY + j] + pc
+                    if mode == ORTHO:
+                        on_plane = abs(zq - wpl) <= tol
+                    else:
+                        on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
+                    near = near | (use_plane & on_plane)
+                    b_ok[j] = b_in[j] & (fb[_ROW_K + j] == key) & near
+                # Then per sample: the landing texel's area and normal for stage 3's
+                # branch-free arithmetic, and what becomes of a rejected sample.
                 for j in range(nb):
-                    fx = fb[_ROW_FX + j]
-                    fy = fb[_ROW_FY + j]
-                    ok = b_in[j]
-                    inside = ok
-                    q = centre
-                    zq = zp
+                    if b_ok[j]:
+                        b_fill[j] = False
+                        b_touch[j] = False
+                        if use_plane:
+                            q8 = np.uint64(b_q[j]) * _EIGHT
+                            fb[_ROW_A + j] = texel[q8 + _FOUR]
+                            fb[_ROW_MX + j] = texel[q8 + _SIX]
+                            fb[_ROW_MY + j] = texel[q8 + _SEVEN]
+                        continue
+                    inside = b_in[j]
+                    q = b_q[j]
+                    zq = fb[_ROW_ZQ + j]
+                    ok = False
                     touching = False
                     area_t = zero
-                    if ok:
-                        q = b_q[j]
-                        zq = fb[_ROW_ZQ + j]
-                        tol = slope * fb[_ROW_R + j]
-                        near = abs(zq - zp) <= tol
-                        # Or within the tolerance of the centre's tangent plane (evaluated
-                        # without a branch: which test passes is hard to predict).
-                        wpl = pa * fx + pb * fy + pc
-                        if mode == ORTHO:
-                            on_plane = abs(zq - wpl) <= tol
+                    if inside and use_touch and np.floor(fb[_ROW_K + j] * inv_k) != obj:
+                        # Another object: does it touch the centre's tangent plane?
+                        dz = zq - zp
+                        if mode == PLANAR:
+                            hq = abs(dz)
                         else:
-                            on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
-                        near = near | (use_plane & on_plane)
-                        kq = fb[_ROW_K + j]
-                        ok = (kq == key) & near
-                        if use_touch and not ok and np.floor(kq * inv_k) != obj:
-                            # Another object: does it touch the centre's tangent plane?
-                            dz = zq - zp
-                            if mode == PLANAR:
-                                hq = abs(dz)
+                            qx = fb[_ROW_QX + j]
+                            qy = fb[_ROW_QY + j]
+                            if mode == ORTHO:
+                                dx = (qx - px) * unit_x
+                                dy = (qy - py) * unit_y
                             else:
-                                qx = fb[_ROW_QX + j]
-                                qy = fb[_ROW_QY + j]
-                                if mode == ORTHO:
-                                    dx = (qx - px) * unit_x
-                                    dy = (qy - py) * unit_y
-                                else:
-                                    dx = ((qx - cx) * zq - (px - cx) * zp) * unit_x
-                                    dy = ((qy - cy) * zq - (py - cy) * zp) * unit_y
-                                hq = abs(dx * nx + dy * ny + dz * nz)
-                            touching = hq <= touch * fb[_ROW_R + j]
+                                dx = ((qx - cx) * zq - (px - cx) * zp) * unit_x
+                                dy = ((qy - cy) * zq - (py - cy) * zp) * unit_y
+                            hq = abs(dx * nx + dy * ny + dz * nz)
+                        touching = hq <= touch * fb[_ROW_R + j]
                     fill = False
                     if touching:
                         # Unlit, at its point of the centre's tangent plane (the plane's
@@ -557,7 +565,7 @@ def _pixel_sums(
                                 zq = one / wq if wq > zero else zp
                                 ratio = zq / zp
                                 area_t = area_p * ratio * ratio
-                    elif not ok:
+                    else:
                         # Hidden surface: on the image, not in front of the centre.
                         fill = use_fill and inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
@@ -570,8 +578,6 @@ def _pixel_sums(
                     b_q[j] = q
                     fb[_ROW_ZQ + j] = zq
                     if use_plane:
-                        # The landing texel's area and normal (the centre's when rejected),
-                        # for stage 3's branch-free arithmetic.
                         q8 = np.uint64(q) * _EIGHT
                         fb[_ROW_A + j] = area_t if touching else texel[q8 + _FOUR]
                         fb[_ROW_MX + j] = texel[q8 + _SIX]
