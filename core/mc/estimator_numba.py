@@ -487,24 +487,24 @@ def _pixel_sums(
                     fb[_ROW_R + j] = r
                     fb[_ROW_QX + j] = min(max(qx, np.float32(-1.0)), full_w)
                     fb[_ROW_QY + j] = min(max(qy, np.float32(-1.0)), full_h)
-                # Stage 2a: the landing pixel, its depth and key.
-                for j in range(nb):
+                # Stage 2a: the landing pixel (for whole vectors), its depth and key.
+                lanes2 = HALF if nb <= HALF else BATCH
+                for j in range(lanes2):
                     fx = np.rint(fb[_ROW_QX + j])
                     fy = np.rint(fb[_ROW_QY + j])
-                    ix = np.int64(fx) - ox
-                    iy = np.int64(fy) - oy
+                    ix = np.int64(np.int32(fx)) - ox
+                    iy = np.int64(np.int32(fy)) - oy
                     inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
-                    q = iy * w + ix if inside else centre
-                    q8 = np.uint64(q) * _EIGHT
                     b_in[j] = inside
-                    b_q[j] = q
-                    fb[_ROW_ZQ + j] = texel[q8 + _THREE]
-                    fb[_ROW_K + j] = texel[q8 + _FIVE]
+                    b_q[j] = iy * w + ix if inside else centre
                     fb[_ROW_FX + j] = fx
                     fb[_ROW_FY + j] = fy
+                for j in range(nb):
+                    q8 = np.uint64(b_q[j]) * _EIGHT
+                    fb[_ROW_ZQ + j] = texel[q8 + _THREE]
+                    fb[_ROW_K + j] = texel[q8 + _FIVE]
                 # Stage 2b: the follow-surface tests. First the accept test for whole
                 # vectors, without a branch (vectorised); entries past nb are never read.
-                lanes2 = HALF if nb <= HALF else BATCH
                 for j in range(lanes2):
                     zq = fb[_ROW_ZQ + j]
                     tol = slope * fb[_ROW_R + j]
