@@ -800,21 +800,48 @@ def surface_keys(slots: np.ndarray, objects: np.ndarray | None) -> tuple[np.ndar
     return (slots + k * objects.astype(np.int32)).astype(np.int32), np.float32(1.0 / k)
 
 
-def tile_order(x: np.ndarray, y: np.ndarray, width: int) -> np.ndarray:
+def tile_order(
+    x: np.ndarray, y: np.ndarray, width: int, active: np.ndarray | None = None
+) -> np.ndarray:
     """(P,) int64: visit pixels (in row-major order) tile by tile, TILE×TILE pixels each.
 
-    A sample reads a texel up to the profile's radius away (tens of pixels). In
-    row-major order the rows a pixel's samples reach span the whole image width;
-    at 1920×1080 that band (~2 MB of texels) no longer stays in a core's L2
-    cache, and a sample cost 40.9 ns against 28.2 ns in 32×32 tiles (minimum of 8
-    interleaved calls, 2 threads; 640×360 is unchanged).
+    ``x``, ``y`` are the pixels' image coordinates; with ``active`` ((P,) int64) the
+    order is over the pixels ``active`` of them. A sample reads a texel up to the
+    profile's radius away (tens of pixels). In row-major order the rows a pixel's
+    samples reach span the whole image width; at 1920×1080 that band (~2 MB of
+    texels) no longer stays in a core's L2 cache, and a sample cost 40.9 ns
+    against 28.2 ns in 32×32 tiles (minimum of 8 interleaved calls, 2 threads;
+    640×360 is unchanged).
     """
-    tiles_x = -(-int(width) // TILE)
-    key = (y // TILE) * tiles_x + x // TILE
-    key = key.astype(
-        np.uint16 if tiles_x * (int(y.max(initial=0)) // TILE + 1) < 1 << 16 else np.int64
-    )
-    return np.argsort(key, kind="stable")
+    x = np.asarray(x, np.int64)
+    if active is None:
+        active = np.arange(x.size, dtype=np.int64)
+    return _tile_order(x, np.asarray(y, np.int64), active, -(-int(width) // TILE))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _tile_order(x, y, active, tiles_x):
+    """Stable counting sort of the active pixels by tile (the order of NumPy's stable
+    argsort of the tile keys; 0.4 against 1.0-1.4 ms with the gathers at 640×360)."""
+    n = active.shape[0]
+    key = np.empty(n, np.int64)
+    top = 0
+    for i in range(n):
+        g = active[i]
+        k = (y[g] // TILE) * tiles_x + x[g] // TILE
+        key[i] = k
+        top = max(top, k)
+    start = np.zeros(top + 2, np.int64)
+    for i in range(n):
+        start[key[i] + 1] += 1
+    for k in range(top + 1):
+        start[k + 1] += start[k]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        k = key[i]
+        order[start[k]] = i
+        start[k] += 1
+    return order
 
 
 def kernel(samples: int, pixels: int = 0):
@@ -878,7 +905,7 @@ def run_kernel(
     first = active[0]
     var, fb = kernel(int(counts[active].sum()), active.size)(
         active,
-        tile_order(geom.x[active], geom.y[active], full_w),
+        tile_order(geom.x, geom.y, full_w, active),
         counts,
         geom.x,
         geom.y,
@@ -937,6 +964,7 @@ def warm_up() -> None:
     """Run the kernels once on one pixel (compiles them, or loads them from the disk cache)."""
     for fn in (pixel_sums, pixel_sums_serial):
         _warm(fn)
+    tile_order(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)
     depth = np.full((2, 2), 2.0, np.float32)
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
         surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)

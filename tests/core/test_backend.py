@@ -483,7 +483,7 @@ def test_kernel_results_do_not_depend_on_the_visiting_order(monkeypatch):
         return distant, var, fallback
 
     tiled = run()
-    monkeypatch.setattr(en, "tile_order", lambda x, y, w: np.arange(x.size)[::-1].copy())
+    monkeypatch.setattr(en, "tile_order", lambda x, y, w, a: np.arange(a.size)[::-1].copy())
     reverse = run()
     assert np.array_equal(tiled[0], reverse[0])
     # It added the pixels' means (a pixel whose samples were all rejected adds 0).
