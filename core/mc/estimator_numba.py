@@ -434,6 +434,10 @@ def _pixel_sums(
             nfb = 0
             for k0 in range(1, m + 1, BATCH):
                 nb = min(BATCH, m + 1 - k0)
+                # Entries the vectorised loops (stages 1a, 2a, 2b, 3) run over: whole
+                # vectors, HALF for a batch of at most HALF samples, else BATCH (see
+                # stage 3).
+                lanes = HALF if nb <= HALF else BATCH
                 # Stages 1 and 2 each run as two loops: the first computes the table
                 # and texel positions, the second reads them. A read that misses L1
                 # then waits beside the other samples' reads, not at the head of a
@@ -446,9 +450,8 @@ def _pixel_sums(
                 # or unsigned integers; one rounding, so the same float32), the channel
                 # and its tail map by selects, and like stage 3 over whole vectors
                 # (entries past nb are never read).
-                lanes1 = HALF if nb <= HALF else BATCH
                 base_u = (hxi + np.uint64(k0) * _A) & _M32
-                for j in range(lanes1):
+                for j in range(lanes):
                     v = (base_u + lane_a[j]) & _M32
                     u = np.float32(np.int32(v >> _S16)) * np.float32(65536.0)
                     u = (u + np.float32(np.int32(v & _M16))) * inv32
@@ -489,8 +492,7 @@ def _pixel_sums(
                     fb[_ROW_QX + j] = min(max(qx, np.float32(-1.0)), full_w)
                     fb[_ROW_QY + j] = min(max(qy, np.float32(-1.0)), full_h)
                 # Stage 2a: the landing pixel (for whole vectors), its depth and key.
-                lanes2 = HALF if nb <= HALF else BATCH
-                for j in range(lanes2):
+                for j in range(lanes):
                     fx = np.rint(fb[_ROW_QX + j])
                     fy = np.rint(fb[_ROW_QY + j])
                     ix = np.int64(np.int32(fx)) - ox
@@ -506,7 +508,7 @@ def _pixel_sums(
                     fb[_ROW_K + j] = texel[q8 + _FIVE]
                 # Stage 2b: the follow-surface tests. First the accept test for whole
                 # vectors, without a branch (vectorised); entries past nb are never read.
-                for j in range(lanes2):
+                for j in range(lanes):
                     zq = fb[_ROW_ZQ + j]
                     tol = slope * fb[_ROW_R + j]
                     near = abs(zq - zp) <= tol
@@ -598,7 +600,6 @@ def _pixel_sums(
                 # Entries past nb hold the previous batch's values (zeros at first);
                 # what they compute is never read.
                 if mode != PLANAR:
-                    lanes = HALF if nb <= HALF else BATCH
                     for j in range(lanes):
                         r = fb[_ROW_R + j]
                         zq = fb[_ROW_ZQ + j]
