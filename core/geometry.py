@@ -38,7 +38,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from .frame import Frame
-    from .profiles.base import Profile
+    from .profiles.base import Profile, Region
 
 
 #: Largest surface area of a pixel, in units of its fronto-parallel footprint (~83° tilt).
@@ -182,6 +182,10 @@ def slot_keys(materials) -> np.ndarray:
     return np.array(sorted(int(s) for s in materials), dtype=np.int64)
 
 
+#: compact_slots looks keys below this up in a table (else a binary search).
+_TABLE_KEYS = 1 << 16
+
+
 def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
     """Material Index values → compact slots: ``keys[i]`` → i + 1, anything else → 0.
 
@@ -200,6 +204,13 @@ def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
     material = np.asarray(material)
     if keys.size == 0:
         return np.zeros(material.shape, np.int32)
+    if material.dtype.kind in "iu" and keys[0] >= 1 and keys[-1] < _TABLE_KEYS:
+        # A lookup table over 0…max key (0 elsewhere); values outside it clip to an
+        # end that reads 0 (keys start at 1). One pass: 0.8 ms against 20 ms for the
+        # binary search at 1280×720.
+        table = np.zeros(int(keys[-1]) + 2, np.int32)
+        table[keys] = np.arange(1, keys.size + 1, dtype=np.int32)
+        return np.take(table, material, mode="clip")
     pos = np.searchsorted(keys, material)
     hit = keys[np.minimum(pos, keys.size - 1)] == material
     return np.where(hit, pos + 1, 0).astype(np.int32)
@@ -349,6 +360,29 @@ def light_scale(frame: Frame, profile: Profile) -> np.ndarray:
     return np.maximum(mean, 1e-12)
 
 
+def distant_region(
+    profile: Profile, r0: np.ndarray, mat: np.ndarray, backend: str = "numpy"
+) -> Region:
+    """``profile.region(r0, mat)``: γ, weight scale and sampling bounds of P pixels.
+
+    ``backend`` (one of core.params.BACKENDS): where it resolves to numba, the
+    Burley profile's region is computed in one compiled pass
+    (:func:`core.mc.estimator_numba.burley_region`: the same operations; ~8 ms
+    against ~39 ms at 1280×720, where NumPy's passes over (P, 3) float64 arrays
+    were half of :func:`prepare`). Other profiles, and subclasses of Burley,
+    run their own ``region``.
+    """
+    if backend != "numpy":
+        from .mc import backend as mc_backend
+        from .profiles.burley import BurleyProfile
+
+        if type(profile) is BurleyProfile and mc_backend.resolve(backend) == "numba":
+            from .mc.estimator_numba import burley_region
+
+            return burley_region(profile, r0, mat)
+    return profile.region(r0, mat)
+
+
 def prepare(
     frame: Frame,
     profile: Profile,
@@ -378,8 +412,9 @@ def prepare(
         (clipped to the window): a method that reads its 3×3 neighbours' own
         estimates (temporal reuse) needs them computed as the whole image would.
     backend : str
-        ``SSSParams.backend``: computes the :class:`Surface` compiled where it
-        resolves to numba (the same arrays, see :func:`surface`).
+        ``SSSParams.backend``: computes the :class:`Surface` and the Burley region
+        compiled where it resolves to numba (the same arrays, see :func:`surface`
+        and :func:`distant_region`).
 
     Returns
     -------
@@ -405,7 +440,7 @@ def prepare(
     z = depth_flat[index].astype(np.float64)
     fw, fh = frame.camera.footprint(z)
     r0 = 0.5 * np.sqrt(fw * fw + fh * fh)
-    region = profile.region(r0, mat)
+    region = distant_region(profile, r0, mat, backend)
     y, x = np.divmod(index, w)
     core = None
     if frame.crop is not None:

@@ -117,6 +117,33 @@ def test_compiled_surface_is_bit_identical(case):
     assert np.isfinite(a.normal).all() and (a.area > 0).any()
 
 
+def test_compiled_burley_region_matches_numpy():
+    """The compiled Burley region (γ, weight scale, sampling bounds) equals the NumPy one:
+    bit for bit where NumPy's float64 exp is libm's (no AVX-512), else within 1 ulp.
+    Channels that do not scatter, r0 = 0 and r0 beyond the truncation radius included."""
+    from cvsss.core.geometry import distant_region
+
+    rng = np.random.default_rng(3)
+    d = np.array([[0, 0, 0], [0.01, 0.005, 0.002], [0.02, 0.0, 0.004], [1e-9, 5.0, 0.3]])
+    profile = BurleyProfile(d)
+    mat = rng.integers(1, 4, 5000)
+    r0 = rng.random(5000) * 0.05
+    r0[:4] = 0.0
+    r0[4:8] = 1e300
+    a = distant_region(profile, r0, mat, "numpy")
+    b = distant_region(profile, r0, mat, "numba")
+    features = np.core._multiarray_umath.__cpu_features__
+    for name in ("gamma", "weight_scale", "lo", "hi"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype == np.float64 and x.shape == y.shape == (5000, 3), name
+        if features.get("AVX512F"):
+            np.testing.assert_array_max_ulp(x, y, maxulp=1)
+        else:
+            assert np.array_equal(x, y), name
+    assert (a.gamma[:, 1][mat == 2] == 0).all()  # a channel without scattering: γ = 0
+    assert (a.gamma > 0).any() and (a.gamma <= 1).all()
+
+
 @pytest.mark.parametrize("hidden", [1.0, 0.5])
 @pytest.mark.parametrize("inverse", ["exact", "fast"])
 @pytest.mark.parametrize("distance", ["surface", "cycles", "planar"])
