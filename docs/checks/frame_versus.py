@@ -1,0 +1,105 @@
+"""Whole-frame time with this checkout's ``prepare()`` against a git revision's, side by side.
+
+Loads ``core/geometry.py`` as it was at REV (``git show``; the rest of the core
+is this checkout's) and runs ``MonteCarloProcessor.process`` on a steady
+``as_ccv`` frame of the bench's flash sequence (``core.synthetic``; frame 3,
+history from frames 1–2, the compiled backend) once with each module's
+``prepare``, calls interleaved, so a slow spell of a shared machine hits both.
+Each call starts from the same history. Prints ms per whole frame (minimum,
+25th percentile and median of the calls) and whether both give the same
+composite, sample counts and history. Run from the repo root:
+
+    .venv/bin/python docs/checks/frame_versus.py REV [WxH ...] [--calls N]
+"""
+
+import argparse
+import importlib.util
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cvsss.core import geometry
+from cvsss.core.mc import processor
+from cvsss.core.methods import make_processor
+from cvsss.core.params import SSSParams
+from cvsss.core.synthetic import scene_frame
+
+
+def load_revision(rev: str, folder: Path):
+    """``core.geometry`` as it was at ``rev``, as a module of the cvsss.core package."""
+    text = subprocess.run(
+        ["git", "show", f"{rev}:core/geometry.py"], check=True, capture_output=True, text=True
+    ).stdout
+    path = folder / f"geometry_{rev.replace('/', '_')}.py"
+    path.write_text(text)
+    name = f"cvsss.core.geometry_{rev.replace('/', '_').replace('-', '_')}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = "cvsss.core"
+    sys.modules[name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
+    w, h = size
+    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
+    proc = make_processor("as_ccv", SSSParams(backend="numba"))
+    for frame in frames[:2]:
+        proc.process(frame)
+    state = proc.state()
+
+    def run(module):
+        processor.prepare = module.prepare
+        proc.restore(state)
+        t0 = time.perf_counter()
+        result = proc.process(frames[2])
+        return time.perf_counter() - t0, result
+
+    try:
+        outputs = {name: run(module)[1] for name, module in modules.items()}  # warms up
+        times = {name: [] for name in modules}
+        for _ in range(calls):
+            for name, module in modules.items():
+                times[name].append(run(module)[0])
+        states = {}
+        for name, module in modules.items():
+            run(module)
+            states[name] = proc.state()
+    finally:
+        processor.prepare = geometry.prepare
+    first = next(iter(modules))
+    print(f"{w}x{h}: {outputs[first].spp:.1f} spp, {outputs[first].samples} samples")
+    for name, t in times.items():
+        ms = np.array(t) * 1e3
+        a, b = outputs[first], outputs[name]
+        same = (
+            np.array_equal(a.composite, b.composite)
+            and np.array_equal(a.counts, b.counts)
+            and states[first].keys() == states[name].keys()
+            and all(np.array_equal(states[first][k], states[name][k]) for k in states[first])
+        )
+        print(
+            f"  {name:>10}: min {ms.min():8.1f}  p25 {np.percentile(ms, 25):8.1f}  "
+            f"median {np.median(ms):8.1f} ms per frame  same result as first: {same}"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rev")
+    ap.add_argument("sizes", nargs="*", default=["1280x720", "1920x1080"])
+    ap.add_argument("--calls", type=int, default=8)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": geometry}
+        for size in a.sizes:
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
+
+
+if __name__ == "__main__":
+    main()
