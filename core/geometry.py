@@ -204,7 +204,8 @@ def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
     material = np.asarray(material)
     if keys.size == 0:
         return np.zeros(material.shape, np.int32)
-    if material.dtype.kind in "iu" and keys[0] >= 1 and keys[-1] < _TABLE_KEYS:
+    integer = material.dtype.kind in "iu" and np.can_cast(material.dtype, np.intp)
+    if integer and keys[0] >= 1 and keys[-1] < _TABLE_KEYS:
         # A lookup table over 0…max key (0 elsewhere); values outside it clip to an
         # end that reads 0 (keys start at 1). One pass: 0.8 ms against 20 ms for the
         # binary search on 921 600 values (one-off timeit).

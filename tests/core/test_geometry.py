@@ -12,11 +12,12 @@ from cvsss.core.geometry import compact_slots
     "keys",
     [[1], [3, 7], [1, 2, 5, 65535], [2, 65536], [7, 2**31 - 1], [0, 4]],
 )
-@pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint32])
+@pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint32, np.uint64, np.uint8])
 def test_compact_slots_maps_keys_to_their_rank_and_anything_else_to_zero(keys, dtype):
-    """The lookup table (keys 1…65535) and the binary search (other keys) give the same
-    slots: ``keys[i]`` → i + 1, every other value → 0, including values above the
-    largest key, negative ones and the Material Index pass's largest, 2³¹ − 1."""
+    """The lookup table (keys 1…65535, index types) and the binary search (other keys,
+    uint64) give the same slots: ``keys[i]`` → i + 1, every other value → 0, including
+    values above the largest key, negative ones and the Material Index pass's largest,
+    2³¹ − 1."""
     keys = np.array(keys, dtype=np.int64)
     rng = np.random.default_rng(0)
     values = np.concatenate(
