@@ -972,6 +972,9 @@ def warm_up() -> None:
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
         surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
     _region(np.ones(1), np.zeros(1, np.int64), np.ones((1, 3)), 8.0, 0.01, np.empty((4, 1, 3)))
+    one, yes = np.ones(1), np.ones(1, np.bool_)
+    _counts_pass(one, one, yes, one, 1e-4, 64.0, 6.0, 0.1, 8.0, 64.0, 0.01, np.empty(1, np.int32))
+    _update_pass(one, one, one, yes, one, one, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty((3, 1)))
 
 
 def _warm(fn) -> None:
@@ -1191,3 +1194,109 @@ def _region(r0, mat, d, truncate, tail_max, out):
             out[1, i, c] = gamma / mass if mass > 0 else 0.0
             out[2, i, c] = lo
             out[3, i, c] = t
+
+
+# -- the SPVG counts and history update (core.mc.adaptive) ----------------------------
+_F64_MAX = np.finfo(np.float64).max
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _finite(x, nan, posinf, neginf):
+    """np.nan_to_num of one float64."""
+    if np.isnan(x):
+        return nan
+    if x == np.inf:
+        return posinf
+    if x == -np.inf:
+        return neginf
+    return x
+
+
+def _flat(x, shape, dtype) -> np.ndarray:
+    """``x`` broadcast to ``shape``, as a contiguous 1-D array of ``dtype``."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=dtype), shape)).reshape(-1)
+
+
+def spvg_counts(var_prev, mbar_prev, valid, gamma_max, params) -> np.ndarray:
+    """:func:`core.mc.adaptive.sample_counts` in one parallel pass (the same float64
+    operations in the same order, so the same counts; tests/core/test_adaptive.py
+    checks it). (P,) int32."""
+    p = params
+    shape = np.broadcast_shapes(*(np.shape(x) for x in (var_prev, mbar_prev, valid, gamma_max)))
+    out = np.empty(shape, np.int32)
+    _counts_pass(
+        _flat(var_prev, shape, np.float64),
+        _flat(mbar_prev, shape, np.float64),
+        _flat(valid, shape, np.bool_),
+        _flat(gamma_max, shape, np.float64),
+        float(p.target_variance),
+        float(p.initial_count),
+        2.0 / p.eta - 2.0,
+        float(p.kappa),
+        float(p.beta_min),
+        float(p.beta_max),
+        float(p.eps_u),
+        out.reshape(-1),
+    )
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _counts_pass(
+    var_prev, mbar_prev, valid, gamma_max, s0, n_init, gain, kappa, lo, hi, eps_u, out
+):
+    for i in numba.prange(out.shape[0]):
+        var = var_prev[i] if valid[i] else s0
+        mbar = mbar_prev[i] if valid[i] else n_init
+        var = _finite(var, s0, _F64_MAX, -_F64_MAX)
+        mbar = _finite(mbar, n_init, hi, -_F64_MAX)
+        ratio = var / s0
+        delta = (ratio - 1.0) * mbar * gain
+        m_hat = _finite(kappa * delta + ratio * mbar, hi, hi, lo)
+        m = min(max(np.rint(m_hat), lo), hi)
+        out[i] = 0 if gamma_max[i] < eps_u else np.int32(m)
+
+
+def spvg_update(mu, var, mbar, valid, tracked, counts, params):
+    """:func:`core.mc.adaptive.update_history` in one parallel pass (the same float64
+    operations in the same order; tests/core/test_adaptive.py checks the bits).
+    Returns mu, var, mbar ((P,) float64) and the new valid flags ((P,) bool)."""
+    p = params
+    shape = np.broadcast_shapes(*(np.shape(x) for x in (mu, var, mbar, valid, tracked, counts)))
+    out = np.empty((3, *shape))
+    eta = p.eta
+    _update_pass(
+        _flat(mu, shape, np.float64),
+        _flat(var, shape, np.float64),
+        _flat(mbar, shape, np.float64),
+        _flat(valid, shape, np.bool_),
+        _flat(tracked, shape, np.float64),
+        _flat(counts, shape, np.float64),
+        1.0 - eta,
+        eta * (1.0 - eta),
+        eta,
+        float(p.target_variance),
+        float(p.initial_count),
+        out.reshape(3, -1),
+    )
+    return out[0], out[1], out[2], np.asarray(counts) > 0
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _update_pass(mu, var, mbar, valid, tracked, counts, keep, spread, eta, s0, n_init, out):
+    big = _F64_MAX
+    for i in numba.prange(out.shape[1]):
+        s = tracked[i]
+        ok = valid[i]
+        mu_prev = mu[i] if ok else s
+        var_prev = var[i] if ok else s0
+        mbar_prev = mbar[i] if ok else n_init
+        dev = s - mu_prev
+        var_new = keep * var_prev + spread * dev * dev
+        mu_new = keep * mu_prev + eta * s if ok else s
+        mbar_new = keep * mbar_prev + eta * counts[i]
+        var_new = var_new if ok else s0
+        var_new = _finite(var_new, s0, big, -big)
+        out[0, i] = _finite(mu_new, 0.0, big, -big)
+        out[1, i] = var_new if var_new > 0.0 else 0.0
+        out[2, i] = _finite(mbar_new, n_init, big, 0.0)

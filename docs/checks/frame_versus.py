@@ -1,10 +1,11 @@
-"""Whole-frame time with this checkout's ``prepare()`` against a git revision's, side by side.
+"""Whole-frame time with this checkout's per-frame setup and SPVG step against a revision's.
 
-Loads ``core/geometry.py`` as it was at REV (``git show``; the rest of the core
-is this checkout's) and runs ``MonteCarloProcessor.process`` on a steady
-``as_ccv`` frame of the bench's flash sequence (``core.synthetic``; frame 3,
-history from frames 1–2, the compiled backend) once with each module's
-``prepare``, calls interleaved, so a slow spell of a shared machine hits both.
+Loads ``core/geometry.py`` and ``core/mc/adaptive.py`` as they were at REV
+(``git show``; the rest of the core is this checkout's) and runs
+``MonteCarloProcessor.process`` on a steady ``as_ccv`` frame of the bench's
+flash sequence (``core.synthetic``; frame 3, history from frames 1–2, the
+compiled backend) once with each revision's ``prepare`` and SPVG counts and
+history update, calls interleaved, so a slow spell of a shared machine hits both.
 Each call starts from the same history. Prints ms per whole frame (minimum,
 25th percentile and median of the calls) and whether both give the same
 composite, sample counts and history. Run from the repo root:
@@ -23,26 +24,35 @@ from pathlib import Path
 import numpy as np
 
 from cvsss.core import geometry
-from cvsss.core.mc import processor
+from cvsss.core.mc import adaptive, processor
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.synthetic import scene_frame
 
 
-def load_revision(rev: str, folder: Path):
-    """``core.geometry`` as it was at ``rev``, as a module of the cvsss.core package."""
+def load_module(rev: str, path: str, package: str, folder: Path):
+    """The module at ``path`` as it was at ``rev``, as a module of ``package``."""
     text = subprocess.run(
-        ["git", "show", f"{rev}:core/geometry.py"], check=True, capture_output=True, text=True
+        ["git", "show", f"{rev}:{path}"], check=True, capture_output=True, text=True
     ).stdout
-    path = folder / f"geometry_{rev.replace('/', '_')}.py"
-    path.write_text(text)
-    name = f"cvsss.core.geometry_{rev.replace('/', '_').replace('-', '_')}"
-    spec = importlib.util.spec_from_file_location(name, path)
+    stem = f"{Path(path).stem}_{rev.replace('/', '_').replace('-', '_')}"
+    file = folder / f"{stem}.py"
+    file.write_text(text)
+    name = f"{package}.{stem}"
+    spec = importlib.util.spec_from_file_location(name, file)
     module = importlib.util.module_from_spec(spec)
-    module.__package__ = "cvsss.core"
+    module.__package__ = package
     sys.modules[name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
     return module
+
+
+def load_revision(rev: str, folder: Path) -> tuple:
+    """(geometry, adaptive) modules as they were at ``rev``."""
+    return (
+        load_module(rev, "core/geometry.py", "cvsss.core", folder),
+        load_module(rev, "core/mc/adaptive.py", "cvsss.core.mc", folder),
+    )
 
 
 def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
@@ -53,8 +63,9 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         proc.process(frame)
     state = proc.state()
 
-    def run(module):
-        processor.prepare = module.prepare
+    def run(pair):
+        processor.prepare = pair[0].prepare
+        processor.adaptive = pair[1]
         proc.restore(state)
         t0 = time.perf_counter()
         result = proc.process(frames[2])
@@ -72,6 +83,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
             states[name] = proc.state()
     finally:
         processor.prepare = geometry.prepare
+        processor.adaptive = adaptive
     first = next(iter(modules))
     print(f"{w}x{h}: {outputs[first].spp:.1f} spp, {outputs[first].samples} samples")
     for name, t in times.items():
@@ -96,7 +108,7 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=8)
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": geometry}
+        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": (geometry, adaptive)}
         for size in a.sizes:
             compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
 
