@@ -1,11 +1,12 @@
-"""Whole-frame time with this checkout's per-frame setup and SPVG step against a revision's.
+"""Whole frames with this checkout's setup, SPVG step and composite against a revision's.
 
-Loads ``core/geometry.py`` and ``core/mc/adaptive.py`` as they were at REV
-(``git show``; the rest of the core is this checkout's) and runs
-``MonteCarloProcessor.process`` on a steady ``as_ccv`` frame of the bench's
-flash sequence (``core.synthetic``; frame 3, history from frames 1–2, the
-compiled backend) once with each revision's ``prepare`` and SPVG counts and
-history update, calls interleaved, so a slow spell of a shared machine hits both.
+Loads ``core/geometry.py``, ``core/mc/adaptive.py`` and ``core/result.py`` as
+they were at REV (``git show``; the rest of the core is this checkout's) and
+runs ``MonteCarloProcessor.process`` on a steady ``as_ccv`` frame of the
+bench's flash sequence (``core.synthetic``; frame 3, history from frames 1–2,
+the compiled backend) once with each revision's ``prepare``, SPVG counts and
+history update and ``assemble`` (the composite), calls interleaved, so a slow
+spell of a shared machine hits both.
 Each call starts from the same history. Prints ms per whole frame (minimum,
 25th percentile and median of the calls) and whether both give the same
 composite, sample counts and history. Run from the repo root:
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsss.core import geometry
+from cvsss.core import geometry, result
 from cvsss.core.mc import adaptive, processor
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
@@ -48,10 +49,11 @@ def load_module(rev: str, path: str, package: str, folder: Path):
 
 
 def load_revision(rev: str, folder: Path) -> tuple:
-    """(geometry, adaptive) modules as they were at ``rev``."""
+    """(geometry, adaptive, result) modules as they were at ``rev``."""
     return (
         load_module(rev, "core/geometry.py", "cvsss.core", folder),
         load_module(rev, "core/mc/adaptive.py", "cvsss.core.mc", folder),
+        load_module(rev, "core/result.py", "cvsss.core", folder),
     )
 
 
@@ -63,13 +65,14 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         proc.process(frame)
     state = proc.state()
 
-    def run(pair):
-        processor.prepare = pair[0].prepare
-        processor.adaptive = pair[1]
+    def run(mods):
+        processor.prepare = mods[0].prepare
+        processor.adaptive = mods[1]
+        processor.assemble = mods[2].assemble
         proc.restore(state)
         t0 = time.perf_counter()
-        result = proc.process(frames[2])
-        return time.perf_counter() - t0, result
+        res = proc.process(frames[2])
+        return time.perf_counter() - t0, res
 
     try:
         outputs = {name: run(module)[1] for name, module in modules.items()}  # warms up
@@ -84,6 +87,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     finally:
         processor.prepare = geometry.prepare
         processor.adaptive = adaptive
+        processor.assemble = result.assemble
     first = next(iter(modules))
     print(f"{w}x{h}: {outputs[first].spp:.1f} spp, {outputs[first].samples} samples")
     for name, t in times.items():
@@ -108,7 +112,7 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=8)
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": (geometry, adaptive)}
+        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": (geometry, adaptive, result)}
         for size in a.sizes:
             compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
 
