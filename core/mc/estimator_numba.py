@@ -1176,18 +1176,16 @@ def _region(r0, mat, d, truncate, tail_max, out):
         k = mat[i]
         for c in range(3):
             dc = d[k, c]
-            pos = dc > 0
-            safe = dc if pos else 1.0
             rmax = dc * truncate
             r = r0[i] if r0[i] < rmax else rmax  # np.minimum (both finite)
-            x = -r
-            t = 0.25 * math.exp(x / safe) + 0.75 * math.exp(x / (3.0 * safe))
-            if not pos:
+            if dc > 0:  # burley.tail at r, and the mass above the truncation tail
+                t = 0.25 * math.exp(-r / dc) + 0.75 * math.exp(-r / (3.0 * dc))
+                lo = tail_max
+                mass = t - lo
+                mass = mass if mass > 0.0 else 0.0
+            else:  # no scattering in this channel
                 t = 0.0 if r > 0 else 1.0
-            lo = tail_max if pos else 0.0
-            mass = t - lo
-            mass = mass if mass > 0.0 else 0.0
-            if not pos:
+                lo = 0.0
                 mass = 0.0
             gamma = mass / total
             out[0, i, c] = gamma
@@ -1220,7 +1218,7 @@ def _flat(x, shape, dtype) -> np.ndarray:
 def spvg_counts(var_prev, mbar_prev, valid, gamma_max, params) -> np.ndarray:
     """:func:`core.mc.adaptive.sample_counts` in one parallel pass (the same float64
     operations in the same order, so the same counts; tests/core/test_adaptive.py
-    checks it). (P,) int32."""
+    checks it). int32, in the inputs' broadcast shape."""
     p = params
     shape = np.broadcast_shapes(*(np.shape(x) for x in (var_prev, mbar_prev, valid, gamma_max)))
     out = np.empty(shape, np.int32)

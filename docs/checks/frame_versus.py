@@ -75,14 +75,14 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         return time.perf_counter() - t0, res
 
     try:
-        outputs = {name: run(module)[1] for name, module in modules.items()}  # warms up
+        outputs = {name: run(mods)[1] for name, mods in modules.items()}  # warms up
         times = {name: [] for name in modules}
         for _ in range(calls):
-            for name, module in modules.items():
-                times[name].append(run(module)[0])
+            for name, mods in modules.items():
+                times[name].append(run(mods)[0])
         states = {}
-        for name, module in modules.items():
-            run(module)
+        for name, mods in modules.items():
+            run(mods)
             states[name] = proc.state()
     finally:
         processor.prepare = geometry.prepare
