@@ -36,6 +36,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .mc.backend import compiled as _compiled
+
 if TYPE_CHECKING:
     from .frame import Frame
     from .profiles.base import Profile, Region
@@ -98,25 +100,22 @@ def surface(frame: Frame, backend: str = "numpy") -> Surface:
     cam = frame.camera
     wu, hu = cam.unit_footprint()
     ortho = cam.type == "ORTHO"
-    if backend != "numpy":
-        from .mc import backend as mc_backend
+    if _compiled(backend):
+        from .mc.estimator_numba import surface_arrays
 
-        if mc_backend.resolve(backend) == "numba":
-            from .mc.estimator_numba import surface_arrays
-
-            oy, ox = frame.origin
-            area, normal = surface_arrays(
-                np.ascontiguousarray(frame.depth, dtype=np.float32),
-                int(ox),
-                int(oy),
-                float(wu),
-                float(hu),
-                float(cam.principal_point[0]),
-                float(cam.principal_point[1]),
-                bool(ortho),
-                MAX_TILT,
-            )
-            return Surface(ortho, (wu, hu), cam.principal_point, area, normal)
+        oy, ox = frame.origin
+        area, normal = surface_arrays(
+            np.ascontiguousarray(frame.depth, dtype=np.float32),
+            int(ox),
+            int(oy),
+            float(wu),
+            float(hu),
+            float(cam.principal_point[0]),
+            float(cam.principal_point[1]),
+            bool(ortho),
+            MAX_TILT,
+        )
+        return Surface(ortho, (wu, hu), cam.principal_point, area, normal)
     z = frame.depth.astype(np.float64)
     h, w = z.shape
     p = positions(cam, frame.depth, frame.origin)
@@ -319,9 +318,26 @@ class Geometry:
         m[self.index] = True
         return m.reshape(self.shape)
 
-    def to_image(self, values: np.ndarray, fill: float = 0.0, dtype=np.float32) -> np.ndarray:
-        """Scatter (P, ...) values into an (H, W, ...) image, ``fill`` elsewhere."""
+    def to_image(
+        self, values: np.ndarray, fill: float = 0.0, dtype=np.float32, backend: str = "numpy"
+    ) -> np.ndarray:
+        """Scatter (P, ...) values into an (H, W, ...) image, ``fill`` elsewhere.
+
+        Float values into a float32 image are clipped to ±float32 max (NaN kept);
+        where ``backend`` resolves to numba that runs as one compiled pass
+        (:func:`core.mc.estimator_numba.float_image`, the same values).
+        """
         values = np.asarray(values)
+        if (
+            np.dtype(dtype) == np.float32
+            and values.dtype.kind == "f"
+            and values.ndim in (1, 2)
+            and _compiled(backend)
+        ):
+            from .mc.estimator_numba import float_image
+
+            out = float_image(values, self.index, self.shape[0] * self.shape[1], fill)
+            return out.reshape(*self.shape, *values.shape[1:])
         if np.dtype(dtype).kind == "f" and values.dtype.kind == "f":
             big = np.finfo(dtype).max
             values = np.clip(values, -big, big)
@@ -372,14 +388,12 @@ def distant_region(
     passes over (P, 3) float64 arrays were half of :func:`prepare`). Other
     profiles, and subclasses of Burley, run their own ``region``.
     """
-    if backend != "numpy":
-        from .mc import backend as mc_backend
-        from .profiles.burley import BurleyProfile
+    from .profiles.burley import BurleyProfile
 
-        if type(profile) is BurleyProfile and mc_backend.resolve(backend) == "numba":
-            from .mc.estimator_numba import burley_region
+    if type(profile) is BurleyProfile and _compiled(backend):
+        from .mc.estimator_numba import burley_region
 
-            return burley_region(profile, r0, mat)
+        return burley_region(profile, r0, mat)
     return profile.region(r0, mat)
 
 

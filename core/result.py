@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .geometry import take_rows
+from .mc.backend import compiled as _compiled
 
 if TYPE_CHECKING:
     from .frame import Frame
@@ -78,7 +79,11 @@ class FrameResult:
 
 
 def composite(
-    frame: Frame, index: np.ndarray, shaded: np.ndarray, weight: np.ndarray | None = None
+    frame: Frame,
+    index: np.ndarray,
+    shaded: np.ndarray,
+    weight: np.ndarray | None = None,
+    backend: str = "numpy",
 ) -> tuple[np.ndarray, np.ndarray]:
     """The composite and the lighting image with ``shaded`` put in at ``index``.
 
@@ -88,6 +93,9 @@ def composite(
     index : (P,) int, flat indices of the SSS pixels
     shaded : (P, 3) float, L at those pixels (linear, >= 0)
     weight : (P,) float in [0, 1], Subsurface Weight w (None: 1)
+    backend : one of core.params.BACKENDS; where it resolves to numba, float64
+        ``shaded`` is composited in one compiled pass with the same float64
+        operations (:func:`core.mc.estimator_numba.composite`: the same images)
 
     Returns
     -------
@@ -96,6 +104,10 @@ def composite(
         elsewhere; clipped to [0, float32 max]
     sss : (H, W, 3) float32, L on SSS pixels and B elsewhere
     """
+    if _compiled(backend) and np.asarray(shaded).dtype == np.float64:
+        from .mc.estimator_numba import composite as compiled_composite
+
+        return compiled_composite(frame, index, shaded, weight)
     shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=_BIG), 0.0, _BIG)
     shape = frame.lighting.shape[:2]
     b = take_rows(frame.lighting, index, shape).astype(np.float64)
@@ -128,6 +140,7 @@ def assemble(
     alpha: np.ndarray | None = None,
     variance: np.ndarray | None = None,
     valid: np.ndarray | None = None,
+    backend: str = "numpy",
 ) -> FrameResult:
     """A :class:`FrameResult` from the per-SSS-pixel arrays of a method.
 
@@ -143,9 +156,11 @@ def assemble(
     pass_ms, total_ms, update_ms : float, wall times (ms)
     alpha, variance : (P,) float, optional (0 where not given)
     valid : (P,) bool, optional (False where not given)
+    backend : one of core.params.BACKENDS, for the composite and the float maps
+        (compiled where it resolves to numba; the same images)
     """
     n = geom.size
-    comp, sss = composite(frame, geom.index, shaded, geom.weight)
+    comp, sss = composite(frame, geom.index, shaded, geom.weight, backend)
     zeros = np.zeros(n)
     # A crop's frame-level figures are those of its core pixels (core.tiling).
     core = slice(None) if geom.core is None else geom.core
@@ -158,9 +173,9 @@ def assemble(
         sss=sss,
         composite=comp,
         counts=geom.to_image(counts, 0, np.int32),
-        alpha=geom.to_image(zeros if alpha is None else alpha),
-        gamma=geom.to_image(geom.gamma),
-        variance=geom.to_image(zeros if variance is None else variance),
+        alpha=geom.to_image(zeros if alpha is None else alpha, backend=backend),
+        gamma=geom.to_image(geom.gamma, backend=backend),
+        variance=geom.to_image(zeros if variance is None else variance, backend=backend),
         valid_history=geom.to_image(np.zeros(n, bool) if valid is None else valid, False, bool),
         mask=geom.mask(),
         spp=float(np.mean(counted)) if pixels else 0.0,

@@ -125,8 +125,6 @@ def _compiled(params: SSSParams) -> bool:
     pixels (an SSS-heavy 1920×1080 frame) 20–34 ms each in NumPy's passes, 3–4 ms
     compiled (one-off ``timeit``s on 2 threads).
     """
-    if params.backend == "numpy":
-        return False
     from . import backend
 
-    return backend.resolve(params.backend) == "numba"
+    return backend.compiled(params.backend)

@@ -105,6 +105,16 @@ def resolve(requested: str) -> str:
     return chosen
 
 
+def compiled(requested: str) -> bool:
+    """True where ``requested`` resolves to the compiled (numba) backend.
+
+    The per-frame steps with a compiled twin (the surface, the region, the SPVG
+    step, the composite) dispatch on it; "numpy" returns at once, without
+    importing numba.
+    """
+    return requested != "numpy" and resolve(requested) == "numba"
+
+
 def describe(requested: str = "auto") -> str:
     """One line for the panel and reports: which backend runs and why."""
     chosen = resolve(requested)

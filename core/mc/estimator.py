@@ -400,9 +400,8 @@ def estimate_distant(
     act_counts = counts[active]
     counted = total if geom.core is None else int(act_counts[geom.core[active]].sum())
     if (
-        backend != "numpy"
-        and type(profile) is BurleyProfile  # a subclass may sample differently
-        and backends.resolve(backend) == "numba"
+        type(profile) is BurleyProfile  # a subclass may sample differently
+        and backends.compiled(backend)
     ):
         from .estimator_numba import run_kernel
 

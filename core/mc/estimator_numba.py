@@ -975,6 +975,9 @@ def warm_up() -> None:
     one, yes = np.ones(1), np.ones(1, np.bool_)
     _counts_pass(one, one, yes, one, 1e-4, 64.0, 6.0, 0.1, 8.0, 64.0, 0.01, np.empty(1, np.int32))
     _update_pass(one, one, one, yes, one, one, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty((3, 1)))
+    rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
+    _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
+    _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
 
 
 def _warm(fn) -> None:
@@ -1298,3 +1301,86 @@ def _update_pass(mu, var, mbar, valid, tracked, counts, keep, spread, eta, s0, n
         out[0, i] = _finite(mu_new, 0.0, big, -big)
         out[1, i] = var_new if var_new > 0.0 else 0.0
         out[2, i] = _finite(mbar_new, n_init, big, 0.0)
+
+
+# -- the composite and the per-pixel maps (core.result) -------------------------------
+def composite(frame, index: np.ndarray, shaded: np.ndarray, weight) -> tuple:
+    """:func:`core.result.composite` in two parallel passes (float64 ``shaded``).
+
+    The same float64 operations as NumPy's, so the same float32 images
+    (tests/core/test_result.py checks it). NumPy's version is a dozen passes
+    over the image and fancy-indexed rows: 60 ms per 1920×1080 frame in a
+    one-off timing, against a few ms here.
+    """
+    h, w = frame.lighting.shape[:2]
+    out = np.empty((h, w, 3), np.float32)
+    sss = np.empty((h, w, 3), np.float32)
+    use_weight = weight is not None and not np.all(weight == 1.0)
+    _composite_pass(
+        _rows(frame.combined),
+        _rows(frame.lighting),
+        _rows(frame.albedo),
+        np.asarray(index, np.int64),
+        np.ascontiguousarray(shaded, np.float64),
+        np.ascontiguousarray(weight if use_weight else np.ones(0), np.float64),
+        use_weight,
+        float(np.finfo(np.float32).max),
+        out.reshape(-1, 3),
+        sss.reshape(-1, 3),
+    )
+    return out, sss
+
+
+def _rows(image: np.ndarray) -> np.ndarray:
+    """An (H, W, 3) float32 image as contiguous (H·W, 3) rows (no copy when it is)."""
+    return np.ascontiguousarray(image, np.float32).reshape(-1, 3)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _composite_pass(combined, lighting, albedo, index, shaded, weight, use_weight, big, out, sss):
+    zero = np.float32(0.0)
+    for i in numba.prange(combined.shape[0]):
+        for c in range(3):
+            x = combined[i, c]
+            out[i, c] = x if (x >= zero or np.isnan(x)) else zero  # np.maximum(x, 0)
+            sss[i, c] = lighting[i, c]
+    for k in numba.prange(index.shape[0]):
+        i = index[k]
+        for c in range(3):
+            # np.clip(np.nan_to_num(s, nan=0, posinf=big), 0, big)
+            s = shaded[k, c]
+            s = 0.0 if np.isnan(s) else min(max(s, 0.0), big)
+            change = s - np.float64(lighting[i, c])
+            if use_weight:
+                change *= weight[k]
+            v = np.float64(combined[i, c]) + np.float64(albedo[i, c]) * change
+            out[i, c] = np.float32(min(max(v, 0.0), big))
+            sss[i, c] = np.float32(s)
+
+
+def float_image(values: np.ndarray, index: np.ndarray, size: int, fill: float) -> np.ndarray:
+    """:meth:`core.geometry.Geometry.to_image` of float values into float32, in one
+    parallel pass: (size, C) or (size,), ``fill`` off ``index``, values clipped to
+    ±float32 max (NaN kept), as NumPy's clip and cast give them. For (P, 3) values
+    NumPy's fancy-indexed row writes took 14.5 ms per 1920×1080 frame (one-off)."""
+    values = np.asarray(values)
+    channels = int(np.prod(values.shape[1:]))  # 1 for (P,); also when P = 0
+    rows = np.ascontiguousarray(values, np.float64).reshape(values.shape[0], channels)
+    out = np.empty((size, rows.shape[1]), np.float32)
+    _float_image_pass(
+        rows, np.asarray(index, np.int64), float(fill), float(np.finfo(np.float32).max), out
+    )
+    return out.reshape(size, *values.shape[1:])
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _float_image_pass(rows, index, fill, big, out):
+    f = np.float32(fill)
+    for i in numba.prange(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[i, c] = f
+    for k in numba.prange(index.shape[0]):
+        i = index[k]
+        for c in range(out.shape[1]):
+            x = rows[k, c]
+            out[i, c] = np.float32(x if np.isnan(x) else min(max(x, -big), big))

@@ -16,6 +16,7 @@ composite, sample counts and history. Run from the repo root:
 
 import argparse
 import importlib.util
+import inspect
 import subprocess
 import sys
 import tempfile
@@ -57,6 +58,17 @@ def load_revision(rev: str, folder: Path) -> tuple:
     )
 
 
+def accepting(fn):
+    """``fn`` called with only the keyword arguments it takes (an older revision's
+    ``assemble`` has no ``backend``)."""
+    names = inspect.signature(fn).parameters
+
+    def call(*args, **kwargs):
+        return fn(*args, **{k: v for k, v in kwargs.items() if k in names})
+
+    return call
+
+
 def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     w, h = size
     frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
@@ -68,7 +80,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     def run(mods):
         processor.prepare = mods[0].prepare
         processor.adaptive = mods[1]
-        processor.assemble = mods[2].assemble
+        processor.assemble = accepting(mods[2].assemble)
         proc.restore(state)
         t0 = time.perf_counter()
         res = proc.process(frames[2])

@@ -144,6 +144,70 @@ def test_compiled_burley_region_matches_numpy():
     assert (a.gamma > 0).any() and (a.gamma <= 1).all()
 
 
+@pytest.mark.parametrize("case", ["whole", "crop"])
+def test_compiled_composite_and_maps_equal_numpy(case):
+    """The compiled composite and float maps (core.result.assemble) give NumPy's images
+    bit for bit: NaN, ±inf, negative and above-float32 ``shaded``, a Subsurface Weight
+    and none (also all ones, which NumPy skips), a crop, (P,) and (P, 3) maps with NaN
+    and out-of-range values."""
+    from cvsss.core.result import composite
+
+    frame = scene_frame("flash", 3, 48, 32)
+    if case == "crop":
+        frame = crop_frame(frame, (4, 28, 6, 40), (8, 24, 10, 36))
+    geom = prepare(frame, frame_profile(frame, SSSParams()))
+    rng = np.random.default_rng(5)
+    shaded = geom.at(frame.lighting).astype(np.float64) * rng.random((geom.size, 3)) * 2
+    shaded[:5] = [[np.nan, np.inf, -np.inf], [-1.0, 1e300, 0.0], [-0.0, 3.5e38, np.nan]] + [
+        [1.0, 2.0, 3.0]
+    ] * 2
+    for weight in (None, rng.random(geom.size), np.ones(geom.size)):
+        a = composite(frame, geom.index, shaded, weight, "numpy")
+        b = composite(frame, geom.index, shaded, weight, "numba")
+        for x, y in zip(a, b):
+            assert x.dtype == y.dtype == np.float32 and x.shape == y.shape == frame.lighting.shape
+            assert np.array_equal(x, y)
+        assert not np.array_equal(a[0], frame.combined)  # the SSS pixels changed
+    values = rng.normal(0, 1e39, (geom.size, 3))
+    values[:3] = [[np.nan, np.inf, -np.inf], [0.5, -0.5, 1e-50], [1, 2, 3]]
+    for v, fill in (
+        (values, 0.0),
+        (values[:, 1], 0.0),
+        ((values[:, 0] / 1e2).astype(np.float32), -1.0),
+    ):
+        x = geom.to_image(v, fill, backend="numpy")
+        y = geom.to_image(v, fill, backend="numba")
+        assert x.dtype == y.dtype == np.float32 and x.shape == y.shape == (
+            *geom.shape,
+            *v.shape[1:],
+        )
+        assert np.array_equal(x, y, equal_nan=True)
+    from cvsss.core.mc import estimator_numba
+
+    # The numba calls above ran the compiled passes (not a NumPy fall-back).
+    assert estimator_numba._composite_pass.signatures
+    assert estimator_numba._float_image_pass.signatures
+
+
+def test_total_ms_covers_the_composite(monkeypatch):
+    """``total_ms`` is the whole ``process()`` call: the composite and the maps built
+    after the sampling included (a composite slowed by 50 ms shows in it)."""
+    import time
+
+    from cvsss.core import result
+
+    slow = result.composite
+
+    def composite(*args, **kwargs):
+        time.sleep(0.05)
+        return slow(*args, **kwargs)
+
+    monkeypatch.setattr(result, "composite", composite)
+    for name in ("as_ccv", "separable"):
+        res = make_processor(name, SSSParams(backend="numba")).process(FRAMES[0])
+        assert res.total_ms >= 50.0 + res.pass_ms + res.update_ms, name
+
+
 @pytest.mark.parametrize("hidden", [1.0, 0.5])
 @pytest.mark.parametrize("inverse", ["exact", "fast"])
 @pytest.mark.parametrize("distance", ["surface", "cycles", "planar"])
