@@ -978,6 +978,11 @@ def warm_up() -> None:
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
     _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
+    plane = np.ones((1, 1), np.float32)
+    for motion in (None, np.zeros((1, 1, 2), np.float32)):
+        reproject_map(motion, plane, at.reshape(1, 1), plane, at.reshape(1, 1), 0.1)
+    for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
+        fetch(np.zeros(1, dtype), at, yes)
 
 
 def _warm(fn) -> None:
@@ -1384,3 +1389,94 @@ def _float_image_pass(rows, index, fill, big, out):
         for c in range(out.shape[1]):
             x = rows[k, c]
             out[i, c] = np.float32(x if np.isnan(x) else min(max(x, -big), big))
+
+
+# -- the history's reprojection (core.mc.history) -------------------------------------
+_BITS = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
+
+
+def reproject_map(motion, depth, material, prev_depth, prev_material, tolerance):
+    """Source pixel, on-screen flag and surface match of every pixel, one parallel pass.
+
+    :meth:`core.mc.history.History.reproject`'s arithmetic (float64 positions,
+    ``rint`` of the clipped position, the relative depth test) per pixel.
+
+    Parameters
+    ----------
+    motion : (H, W, 2) float32 or None (static)
+    depth, prev_depth : (H, W) float32; material, prev_material : (H, W) int
+    tolerance : float, relative depth change still accepted
+
+    Returns
+    -------
+    src : (H·W,) int64, flat source pixel (0 off screen)
+    inside, same : (H·W,) bool, on screen; and the same slot at a close depth
+    """
+    h, w = depth.shape
+    n = h * w
+    src = np.empty(n, np.int64)
+    inside = np.empty(n, np.bool_)
+    same = np.empty(n, np.bool_)
+    flow = np.zeros((0, 2), np.float32) if motion is None else motion.reshape(n, 2)
+    _reproject_pass(
+        np.ascontiguousarray(flow),
+        motion is not None,
+        h,
+        w,
+        np.ascontiguousarray(depth).reshape(-1),
+        np.ascontiguousarray(material, np.int64).reshape(-1),
+        np.ascontiguousarray(prev_depth).reshape(-1),
+        np.ascontiguousarray(prev_material, np.int64).reshape(-1),
+        float(tolerance),
+        src,
+        inside,
+        same,
+    )
+    return src, inside, same
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _source(i, flow, has_motion, w, h):
+    """(flat source pixel, on screen) of pixel i moved by its motion vector."""
+    if not has_motion:
+        return np.int64(i), True
+    y = i // w
+    fx = np.float64(i - y * w) + np.float64(flow[i, 0])
+    fy = np.float64(y) + np.float64(flow[i, 1])
+    ok = np.isfinite(fx) and np.isfinite(fy)
+    if not ok:
+        fx = -1.0
+        fy = -1.0
+    px = np.int64(np.rint(min(max(fx, -1.0), np.float64(w))))
+    py = np.int64(np.rint(min(max(fy, -1.0), np.float64(h))))
+    ok = ok and px >= 0 and px < w and py >= 0 and py < h
+    return (py * w + px if ok else np.int64(0)), ok
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _reproject_pass(
+    flow, has_motion, h, w, depth, material, prev_depth, prev_material, tol, src, inside, same
+):
+    for i in numba.prange(depth.shape[0]):
+        s, ok = _source(i, flow, has_motion, w, h)
+        prev = np.float64(prev_depth[s])
+        cur = np.float64(depth[i])
+        src[i] = s
+        inside[i] = ok
+        same[i] = ok and prev_material[s] == material[i] and abs(prev - cur) <= tol * cur
+
+
+def fetch(values: np.ndarray, src: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``values.flat[src]`` where ``keep``, zero elsewhere, in ``values``' shape and
+    dtype (bits copied: float16, float32 or bool), one parallel pass."""
+    values = np.ascontiguousarray(values)
+    bits = _BITS[values.dtype.itemsize]
+    out = np.empty(values.shape, values.dtype)
+    _fetch_pass(values.reshape(-1).view(bits), src, keep, out.reshape(-1).view(bits))
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _fetch_pass(values, src, keep, out):
+    for i in numba.prange(out.shape[0]):
+        out[i] = values[src[i]] if keep[i] else 0

@@ -193,7 +193,11 @@ class History:
 
     # -- reprojection -------------------------------------------------------
     def reproject(
-        self, motion: np.ndarray | None, depth: np.ndarray, material: np.ndarray
+        self,
+        motion: np.ndarray | None,
+        depth: np.ndarray,
+        material: np.ndarray,
+        backend: str = "numpy",
     ) -> History:
         """History aligned with the current frame.
 
@@ -208,6 +212,10 @@ class History:
         motion : (H, W, 2) float or None (static)
         depth : (H, W) float, current depth (inf = background)
         material : (H, W) int, current slot
+        backend : one of core.params.BACKENDS; where it resolves to numba (and the
+            passes are float32 and integer, as a Frame holds them) the mapping and
+            the fetches are compiled passes with the same arithmetic
+            (:func:`core.mc.estimator_numba.reproject_map`): the same history
 
         Returns
         -------
@@ -219,6 +227,8 @@ class History:
                 f"{depth.shape[1]}x{depth.shape[0]}"
             )
         h, w = self.shape
+        if self._compiled(backend, motion, depth, material):
+            return self._reproject_compiled(motion, depth, material)
         if motion is None:
             src = np.arange(h * w)
             inside = np.ones(h * w, dtype=bool)
@@ -267,6 +277,42 @@ class History:
             depth=np.asarray(depth, dtype=np.float32).copy(),
         )
         return out
+
+    def _compiled(self, backend, motion, depth, material) -> bool:
+        """The compiled reprojection runs: numba backend, the passes' Frame dtypes."""
+        typed = (
+            depth.dtype == np.float32
+            and np.asarray(material).dtype.kind in "iu"
+            and (motion is None or motion.dtype == np.float32)
+            and self.depth.dtype == np.float32
+        )
+        from .backend import compiled
+
+        return typed and compiled(backend)
+
+    def _reproject_compiled(self, motion, depth, material) -> History:
+        """:meth:`reproject` as compiled passes: one for the source pixels, one per
+        buffer. 52 ms per 1920×1080 frame in NumPy (line profile, 8 history buffers)."""
+        from .estimator_numba import fetch, reproject_map
+
+        src, inside, same = reproject_map(
+            motion, depth, material, self.depth, self.material, REPROJECT_DEPTH_TOLERANCE
+        )
+        buffers = {
+            k: fetch(v, src, same if k in RESET_FIELDS else inside) for k, v in self.buffers.items()
+        }
+        return History(
+            shape=self.shape,
+            precision=self.precision,
+            cov_scale=self.cov_scale,
+            var_scale=self.var_scale,
+            frame=self.frame,
+            buffers=buffers,
+            valid=fetch(self.valid, src, same),
+            cv_valid=fetch(self.cv_valid, src, same),
+            material=np.asarray(material, dtype=np.int32).copy(),
+            depth=np.asarray(depth, dtype=np.float32).copy(),
+        )
 
     # -- checkpoints --------------------------------------------------------
     def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:

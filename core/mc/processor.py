@@ -105,7 +105,7 @@ class MonteCarloProcessor:
                 f"frame {frame.number} is {frame.shape[1]}x{frame.shape[0]} but the "
                 f"sequence started at {self.history.shape[1]}x{self.history.shape[0]}"
             )
-        return self.history.reproject(frame.motion, frame.depth, frame.material)
+        return self.history.reproject(frame.motion, frame.depth, frame.material, backend=p.backend)
 
     def process(self, frame: Frame, counts: np.ndarray | None = None) -> FrameResult:
         """Post-process one frame.

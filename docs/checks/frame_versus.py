@@ -1,12 +1,14 @@
-"""Whole frames with this checkout's setup, SPVG step and composite against a revision's.
+"""Whole frames with this checkout's setup, SPVG step, composite and history
+reprojection against a revision's.
 
-Loads ``core/geometry.py``, ``core/mc/adaptive.py`` and ``core/result.py`` as
-they were at REV (``git show``; the rest of the core is this checkout's) and
-runs ``MonteCarloProcessor.process`` on a steady ``as_ccv`` frame of the
-bench's flash sequence (``core.synthetic``; frame 3, history from frames 1–2,
-the compiled backend) once with each revision's ``prepare``, SPVG counts and
-history update and ``assemble`` (the composite), calls interleaved, so a slow
-spell of a shared machine hits both.
+Loads ``core/geometry.py``, ``core/mc/adaptive.py``, ``core/result.py`` and
+``core/mc/history.py`` as they were at REV (``git show``; the rest of the core
+is this checkout's) and runs ``MonteCarloProcessor.process`` on a steady
+``as_ccv`` frame of the bench's flash sequence (``core.synthetic``; frame 3,
+history from frames 1–2, the compiled backend) once with each revision's
+``prepare``, SPVG counts and history update, ``assemble`` (the composite) and
+``History.reproject``, calls interleaved, so a slow spell of a shared machine
+hits both.
 Each call starts from the same history. Prints ms per whole frame (minimum,
 25th percentile and median of the calls) and whether both give the same
 composite, sample counts and history. Run from the repo root:
@@ -26,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cvsss.core import geometry, result
-from cvsss.core.mc import adaptive, processor
+from cvsss.core.mc import adaptive, history, processor
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.synthetic import scene_frame
@@ -50,17 +52,18 @@ def load_module(rev: str, path: str, package: str, folder: Path):
 
 
 def load_revision(rev: str, folder: Path) -> tuple:
-    """(geometry, adaptive, result) modules as they were at ``rev``."""
+    """(geometry, adaptive, result, history) modules as they were at ``rev``."""
     return (
         load_module(rev, "core/geometry.py", "cvsss.core", folder),
         load_module(rev, "core/mc/adaptive.py", "cvsss.core.mc", folder),
         load_module(rev, "core/result.py", "cvsss.core", folder),
+        load_module(rev, "core/mc/history.py", "cvsss.core.mc", folder),
     )
 
 
 def accepting(fn):
     """``fn`` called with only the keyword arguments it takes (an older revision's
-    ``assemble`` has no ``backend``)."""
+    ``assemble`` or ``History.reproject`` has no ``backend``)."""
     names = inspect.signature(fn).parameters
 
     def call(*args, **kwargs):
@@ -71,6 +74,9 @@ def accepting(fn):
 
 def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     w, h = size
+    reproject = history.History.reproject
+    # Each revision's reproject, taken before run() patches this checkout's class.
+    reprojects = {id(mods): accepting(mods[3].History.reproject) for mods in modules.values()}
     frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
     proc = make_processor("as_ccv", SSSParams(backend="numba"))
     for frame in frames[:2]:
@@ -81,6 +87,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         processor.prepare = mods[0].prepare
         processor.adaptive = mods[1]
         processor.assemble = accepting(mods[2].assemble)
+        history.History.reproject = reprojects[id(mods)]
         proc.restore(state)
         t0 = time.perf_counter()
         res = proc.process(frames[2])
@@ -100,6 +107,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         processor.prepare = geometry.prepare
         processor.adaptive = adaptive
         processor.assemble = result.assemble
+        history.History.reproject = reproject
     first = next(iter(modules))
     print(f"{w}x{h}: {outputs[first].spp:.1f} spp, {outputs[first].samples} samples")
     for name, t in times.items():
@@ -124,7 +132,8 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=8)
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": (geometry, adaptive, result)}
+        this = (geometry, adaptive, result, history)
+        modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": this}
         for size in a.sizes:
             compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
 

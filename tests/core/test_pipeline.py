@@ -77,7 +77,8 @@ def test_float16_history_stays_close_to_float32():
     assert np.count_nonzero(h16.buffers["syy"]) > 0
 
 
-def test_history_reprojection_follows_motion():
+@pytest.mark.parametrize("backend", ["numpy", "auto"])
+def test_history_reprojection_follows_motion(backend):
     h = History.empty((4, 6))
     h.buffers["mu"][1, 2] = 5.0
     h.valid[1, 2] = True
@@ -85,15 +86,15 @@ def test_history_reprojection_follows_motion():
     h.depth[:] = 2.0
     motion = np.zeros((4, 6, 2), np.float32)
     motion[2, 4] = (-2.0, -1.0)  # surface now at (row 2, col 4) came from (1, 2)
-    out = h.reproject(motion, np.full((4, 6), 2.0, np.float32), np.ones((4, 6), np.int32))
+    out = h.reproject(motion, np.full((4, 6), 2.0, np.float32), np.ones((4, 6), np.int32), backend)
     assert out.buffers["mu"][2, 4] == 5.0 and out.valid[2, 4]
     # Material change or a depth jump invalidates.
     mat = np.ones((4, 6), np.int32)
     mat[2, 4] = 2
-    assert not h.reproject(motion, np.full((4, 6), 2.0, np.float32), mat).valid[2, 4]
+    assert not h.reproject(motion, np.full((4, 6), 2.0, np.float32), mat, backend).valid[2, 4]
     depth = np.full((4, 6), 2.0, np.float32)
     depth[2, 4] = 3.0
-    assert not h.reproject(motion, depth, np.ones((4, 6), np.int32)).valid[2, 4]
+    assert not h.reproject(motion, depth, np.ones((4, 6), np.int32), backend).valid[2, 4]
 
 
 def test_checkpoint_round_trip(tmp_path):
