@@ -25,6 +25,11 @@ not depend on the thread count, the schedule or the order the pixels are
 visited in (32×32 tiles, :func:`tile_order`; tiles of core.tiling stay
 bit-identical to a whole-frame run on the same backend).
 
+The module also holds compiled twins of the other per-frame steps, each the
+same arithmetic as its NumPy original and tested bit for bit against it: the
+depth-buffer surface, the Burley region, the SPVG counts and history update,
+the composite and float maps, and the history reprojection.
+
 This module imports numba at import time; import it through
 :mod:`core.mc.backend`, which does so lazily and falls back to NumPy.
 """
