@@ -108,9 +108,9 @@ def resolve(requested: str) -> str:
 def compiled(requested: str) -> bool:
     """True where ``requested`` resolves to the compiled (numba) backend.
 
-    The per-frame steps with a compiled twin (the surface, the region, the SPVG
-    step, the composite) dispatch on it; "numpy" returns at once, without
-    importing numba.
+    The sampling step and the per-frame steps with a compiled twin (the surface,
+    the region, the SPVG step, the composite and maps, the history reprojection)
+    dispatch on it; "numpy" returns at once, without importing numba.
     """
     return requested != "numpy" and resolve(requested) == "numba"
 

@@ -292,7 +292,8 @@ class History:
 
     def _reproject_compiled(self, motion, depth, material) -> History:
         """:meth:`reproject` as compiled passes: one for the source pixels, one per
-        buffer. 52 ms per 1920×1080 frame in NumPy (line profile, 8 history buffers)."""
+        buffer. At 1920×1080 with 8 float16 buffers 58 → 14 ms static and 131 → 35 ms
+        with motion vectors (one-off ``timeit``s)."""
         from .estimator_numba import fetch, reproject_map
 
         src, inside, same = reproject_map(
