@@ -264,19 +264,28 @@ class History:
                 buffers[name] = np.where(same.reshape(self.shape), buffers[name], 0).astype(
                     self.dtype
                 )
-        out = History(
+        return self._aligned(
+            buffers,
+            (self.valid.reshape(-1)[src] & same).reshape(self.shape),
+            (self.cv_valid.reshape(-1)[src] & same).reshape(self.shape),
+            depth,
+            material,
+        )
+
+    def _aligned(self, buffers, valid, cv_valid, depth, material) -> History:
+        """The reprojected history: these buffers and masks, the current depth and slots."""
+        return History(
             shape=self.shape,
             precision=self.precision,
             cov_scale=self.cov_scale,
             var_scale=self.var_scale,
             frame=self.frame,
             buffers=buffers,
-            valid=(self.valid.reshape(-1)[src] & same).reshape(self.shape),
-            cv_valid=(self.cv_valid.reshape(-1)[src] & same).reshape(self.shape),
+            valid=valid,
+            cv_valid=cv_valid,
             material=np.asarray(material, dtype=np.int32).copy(),
             depth=np.asarray(depth, dtype=np.float32).copy(),
         )
-        return out
 
     def _compiled(self, backend, motion, depth, material) -> bool:
         """The compiled reprojection runs: numba backend, the passes' Frame dtypes."""
@@ -302,18 +311,8 @@ class History:
         buffers = {
             k: fetch(v, src, same if k in RESET_FIELDS else inside) for k, v in self.buffers.items()
         }
-        return History(
-            shape=self.shape,
-            precision=self.precision,
-            cov_scale=self.cov_scale,
-            var_scale=self.var_scale,
-            frame=self.frame,
-            buffers=buffers,
-            valid=fetch(self.valid, src, same),
-            cv_valid=fetch(self.cv_valid, src, same),
-            material=np.asarray(material, dtype=np.int32).copy(),
-            depth=np.asarray(depth, dtype=np.float32).copy(),
-        )
+        valid, cv_valid = fetch(self.valid, src, same), fetch(self.cv_valid, src, same)
+        return self._aligned(buffers, valid, cv_valid, depth, material)
 
     # -- checkpoints --------------------------------------------------------
     def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
