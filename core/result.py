@@ -8,6 +8,7 @@ arrays of any method (Monte Carlo or separable), so the composite
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -135,7 +136,7 @@ def assemble(
     fallback: int,
     draws: int,
     pass_ms: float,
-    total_ms: float,
+    started: float,
     update_ms: float = 0.0,
     alpha: np.ndarray | None = None,
     variance: np.ndarray | None = None,
@@ -153,7 +154,10 @@ def assemble(
     eps_u : float, ε_u of the distant-share statistic
     samples : int, samples taken
     fallback, draws : int, samples (or reads) that fell back to the centre, of ``draws``
-    pass_ms, total_ms, update_ms : float, wall times (ms)
+    pass_ms, update_ms : float, wall times (ms)
+    started : float, ``time.perf_counter()`` when the caller's ``process()`` began:
+        ``total_ms`` is the time from it to the end of this call (the composite and
+        the maps included)
     alpha, variance : (P,) float, optional (0 where not given)
     valid : (P,) bool, optional (False where not given)
     backend : one of core.params.BACKENDS, for the composite and the float maps
@@ -167,7 +171,7 @@ def assemble(
     counted = np.asarray(counts)[core]
     distant = geom.gamma_max[core] >= eps_u
     pixels = int(distant.size)
-    return FrameResult(
+    result = FrameResult(
         number=frame.number,
         method=method,
         sss=sss,
@@ -182,7 +186,7 @@ def assemble(
         samples=int(samples),
         pass_ms=pass_ms,
         update_ms=update_ms,
-        total_ms=total_ms,
+        total_ms=0.0,
         distant_share=float(np.mean(distant)) if pixels else 0.0,
         fallback_share=fallback / draws if draws else 0.0,
         repaired=frame.repaired,
@@ -190,3 +194,5 @@ def assemble(
         draws=int(draws),
         distant_pixels=int(np.count_nonzero(distant)),
     )
+    result.total_ms = (time.perf_counter() - started) * 1e3
+    return result

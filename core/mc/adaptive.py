@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..params import SSSParams
+from .backend import compiled
 
 
 def sample_counts(
@@ -46,7 +47,7 @@ def sample_counts(
     Where ``params.backend`` resolves to numba, one compiled pass computes the
     same counts (:func:`core.mc.estimator_numba.spvg_counts`).
     """
-    if _compiled(params):
+    if compiled(params.backend):
         from .estimator_numba import spvg_counts
 
         return spvg_counts(var_prev, mbar_prev, valid, gamma_max, params)
@@ -94,7 +95,7 @@ def update_history(
     Where ``params.backend`` resolves to numba, one compiled pass computes the
     same values (:func:`core.mc.estimator_numba.spvg_update`).
     """
-    if _compiled(params):
+    if compiled(params.backend):
         from .estimator_numba import spvg_update
 
         return spvg_update(mu, var, mbar, valid, tracked, counts, params)
@@ -116,15 +117,3 @@ def update_history(
     mu_new = np.nan_to_num(mu_new, nan=0.0, posinf=big, neginf=-big)
     mbar_new = np.nan_to_num(mbar_new, nan=params.initial_count, posinf=big, neginf=0.0)
     return mu_new, var_new, mbar_new, np.asarray(counts) > 0
-
-
-def _compiled(params: SSSParams) -> bool:
-    """True where ``params.backend`` resolves to the compiled (numba) backend.
-
-    Both steps are elementwise float64 arithmetic over the SSS pixels: for 917 k
-    pixels (an SSS-heavy 1920×1080 frame) 20–34 ms each in NumPy's passes, 3–4 ms
-    compiled (one-off ``timeit``s on 2 threads).
-    """
-    from . import backend
-
-    return backend.compiled(params.backend)

@@ -194,7 +194,7 @@ class MonteCarloProcessor:
             self.history = hist
         update_ms = (time.perf_counter() - t1) * 1e3
         shaded = (1.0 - geom.gamma) * b + distant
-        result = assemble(
+        return assemble(
             frame,
             geom,
             self.method.name,
@@ -206,15 +206,12 @@ class MonteCarloProcessor:
             draws=est.samples,
             pass_ms=pass_ms,
             update_ms=update_ms,
-            total_ms=0.0,
+            started=t_start,
             alpha=alpha,
             variance=variance,
             valid=valid,
             backend=p.backend,
         )
-        # The whole call, the composite and the maps included.
-        result.total_ms = (time.perf_counter() - t_start) * 1e3
-        return result
 
     def _proxy(self, frame: Frame, profile: Profile, geom: Geometry, b: np.ndarray) -> np.ndarray:
         """(P, 3) the separable estimate of the distant integral: the noise-free proxy."""

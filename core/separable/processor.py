@@ -62,7 +62,7 @@ class SeparableProcessor:
             depth_slope=self.params.depth_slope,
         )
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)
-        result = assemble(
+        return assemble(
             frame,
             geom,
             self.method.name,
@@ -73,9 +73,6 @@ class SeparableProcessor:
             fallback=stats["fallback"],
             draws=stats["tap_reads"],
             pass_ms=stats["pass_ms"],
-            total_ms=0.0,
+            started=t_start,
             backend=self.params.backend,
         )
-        # The whole call, the composite and the maps included.
-        result.total_ms = (time.perf_counter() - t_start) * 1e3
-        return result
