@@ -16,7 +16,7 @@ import numpy as np
 
 from ..eval.color import REC709
 from ..frame import Frame
-from ..geometry import Geometry, light_scale, prepare
+from ..geometry import Geometry, GeometryCache, light_scale, prepare
 from ..methods import Method, MethodOptions
 from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
@@ -61,6 +61,7 @@ class MonteCarloProcessor:
         self.profiles = ProfileCache(params, options.profile)
         self.history: History | None = None
         self._proxy_kernels: tuple[Profile, dict] | None = None
+        self._geometry = GeometryCache()
 
     # -- state ------------------------------------------------------------------------
     def state(self) -> dict[str, np.ndarray]:
@@ -127,7 +128,8 @@ class MonteCarloProcessor:
         # A tile samples its core pixels only (core.tiling): each pixel's result needs
         # its own history and the passes around it, never its neighbours' results.
         # Temporal reuse reads its 3×3 neighbours' estimates: a tile computes a 1-pixel ring.
-        geom = prepare(
+        # A still scene (only the lights change) reuses the last frame's Geometry.
+        geom = self._geometry.prepare(
             frame,
             profile,
             surface_distance=p.distance != "planar",

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..frame import Frame
+from ..geometry import GeometryCache
 from ..methods import Method, MethodOptions
 from ..params import SSSParams
 from ..profiles.base import Profile
@@ -37,6 +38,7 @@ class SeparableProcessor:
         self.separable = options.separable
         self.profiles = ProfileCache(params, options.profile)
         self._kernels: tuple[Profile, dict[int, SlotKernel]] | None = None
+        self._geometry = GeometryCache()
 
     def state(self) -> dict[str, np.ndarray]:
         return {}
@@ -60,6 +62,8 @@ class SeparableProcessor:
             self.kernels(profile),
             seed=self.params.seed,
             depth_slope=self.params.depth_slope,
+            # A still scene (only the lights change) reuses the last frame's Geometry.
+            geom=self._geometry.prepare(frame, profile, backend=self.params.backend),
         )
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)
         return assemble(

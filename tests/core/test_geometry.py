@@ -36,3 +36,149 @@ def test_compact_slots_maps_keys_to_their_rank_and_anything_else_to_zero(keys, d
 
 def test_compact_slots_without_subsurface_materials_is_all_zero():
     assert not compact_slots(np.arange(10, dtype=np.int32), np.zeros(0, np.int64)).any()
+
+
+# -- GeometryCache: a still scene's geometry, reused -------------------------------------
+def _geometry_fields_equal(a, b) -> bool:
+    """Every field of two Geometries holds the same values (arrays: same dtype and bits)."""
+    import dataclasses
+
+    from cvsss.core.geometry import Geometry
+
+    for f in dataclasses.fields(Geometry):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if f.name == "surface" and x is not None and y is not None:
+            same = (
+                (x.ortho, x.unit, x.centre) == (y.ortho, y.unit, y.centre)
+                and np.array_equal(x.area.view(np.uint32), y.area.view(np.uint32))
+                and np.array_equal(x.normal.view(np.uint32), y.normal.view(np.uint32))
+            )
+        elif isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            same = (
+                isinstance(x, np.ndarray)
+                and isinstance(y, np.ndarray)
+                and x.dtype == y.dtype
+                and x.shape == y.shape
+                and np.array_equal(x.view(np.uint8), y.view(np.uint8))
+            )
+        else:
+            same = x == y
+        if not same:
+            return False
+    return True
+
+
+def _lit_frames(n: int = 3):
+    """Frames 1…n of the flash sequence (only the lights change) with an Object Index,
+    a per-pixel Subsurface Weight and an indirect pass that change from frame to frame."""
+    import dataclasses
+
+    from cvsss.core.synthetic import scene_frame
+
+    frames = []
+    for k in range(1, n + 1):
+        f = scene_frame("flash", k, 48, 32)
+        rng = np.random.default_rng(k)
+        weight = rng.uniform(0.0, 1.0, f.shape).astype(np.float32)
+        weight[rng.random(f.shape) < 0.3] = np.nan  # the material's weight there
+        frames.append(
+            dataclasses.replace(
+                f,
+                objects=(np.arange(f.shape[1]) // 24).astype(np.int32)[None].repeat(f.shape[0], 0),
+                sss_weight=weight,
+                indirect=(0.3 * k * f.lighting).astype(np.float32),
+            )
+        )
+    return frames
+
+
+@pytest.mark.parametrize("backend", ["numpy", "auto"])
+def test_geometry_cache_reuses_a_still_scene_bit_for_bit(backend):
+    """Frames whose geometry passes do not change (the flash sequence) are served from
+    the cache: every field equals prepare()'s of that frame, bit for bit, including the
+    lighting-dependent direct part and the Subsurface Weight, which change each frame."""
+    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import ProfileCache
+
+    frames = _lit_frames(3)
+    profiles = ProfileCache(SSSParams())
+    cache = GeometryCache()
+    options = dict(surface_distance=True, core_only=True, backend=backend)
+    directs = []
+    for f in frames:
+        profile = profiles.get(f)
+        geom = cache.prepare(f, profile, **options)
+        assert _geometry_fields_equal(geom, prepare(f, profile, **options))
+        directs.append(geom.direct)
+    assert cache.hits == 2
+    assert not np.array_equal(directs[0], directs[1])  # taken from each frame's passes
+
+
+def test_geometry_cache_prepares_anew_when_geometry_changes():
+    """A changed pass (one depth value, one Material Index, one
+    Object Index), camera, crop, material table, profile or option is a miss: the
+    result is prepare()'s of the new frame."""
+    import dataclasses
+
+    from cvsss.core.frame import Crop
+    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import ProfileCache
+
+    base = _lit_frames(1)[0]
+    profiles = ProfileCache(SSSParams())
+    profile = profiles.get(base)
+
+    def changed(**kw):
+        return dataclasses.replace(base, **kw)
+
+    depth = base.depth.copy()
+    depth[10, 20] *= 1.01
+    material = base.material.copy()
+    material[12, 24] = 0
+    objects = base.objects.copy()
+    objects[12, 24] += 1
+    cam = base.camera
+    h, w = base.shape
+    cases = [
+        (changed(depth=depth), {}),
+        (changed(material=material), {}),
+        (changed(objects=objects), {}),
+        (changed(objects=None), {}),
+        (changed(camera=dataclasses.replace(cam, lens=cam.lens * 1.1)), {}),
+        (changed(crop=Crop(image=(h, w), origin=(0, 0), core=(0, h, 0, w // 2))), {}),
+        (changed(materials={k: v for k, v in list(base.materials.items())[:1]}), {}),
+        (base, {"surface_distance": False}),
+    ]
+    for frame, options in cases:
+        cache = GeometryCache()
+        cache.prepare(base, profile, surface_distance=True)
+        prof = profiles.get(frame)
+        geom = cache.prepare(frame, prof, **{"surface_distance": True, **options})
+        assert cache.hits == 0
+        assert _geometry_fields_equal(
+            geom, prepare(frame, prof, **{"surface_distance": True, **options})
+        )
+    # The same materials with a new profile object (another ProfileCache) is a miss too.
+    cache = GeometryCache()
+    cache.prepare(base, profile)
+    cache.prepare(base, ProfileCache(SSSParams()).get(base))
+    assert cache.hits == 0
+
+
+def test_geometry_cache_keeps_its_own_copy_of_the_passes():
+    """Writing into the previous frame's depth array after it was prepared (a reader
+    that reuses its buffers) does not make the next frame a false hit."""
+    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import ProfileCache
+
+    frame = _lit_frames(1)[0]
+    profile = ProfileCache(SSSParams()).get(frame)
+    cache = GeometryCache()
+    cache.prepare(frame, profile)
+    frame.depth[5:9, 5:40] = 2.5  # the buffer now holds the next frame's depth
+    geom = cache.prepare(frame, profile)
+    assert cache.hits == 0
+    assert _geometry_fields_equal(geom, prepare(frame, profile))

@@ -62,6 +62,35 @@ def test_every_method_runs(method):
         assert res.samples == 0 and np.array_equal(res.composite, f.combined)
 
 
+@pytest.mark.parametrize("method", ["as_ccv", "as_ocv_t", "separable"])
+def test_reused_geometry_gives_the_same_frames(method):
+    """The processors reuse a still scene's Geometry (core.geometry.GeometryCache): a
+    sequence whose geometry is still, then moves, then is still again gives the same
+    frames, bit for bit, as one that prepares every frame anew; the still frames hit."""
+    import dataclasses
+
+    from cvsss.core import geometry
+
+    frames = list(sequence("flash", 6, 64, 36))
+    for k in (3, 4):  # geometry moves on frames 4 and 5, and stays from 5 to 6
+        frames[k] = dataclasses.replace(frames[k], depth=frames[k].depth * (1.0 + 0.05 * (k - 2)))
+    frames[5] = dataclasses.replace(frames[5], depth=frames[4].depth.copy())
+
+    class Fresh(geometry.GeometryCache):
+        def prepare(self, frame, profile, **options):
+            return geometry.prepare(frame, profile, **options)
+
+    params = SSSParams(backend="numpy")
+    cached, fresh = make_processor(method, params), make_processor(method, params)
+    fresh._geometry = Fresh()
+    for f in frames:
+        a, b = cached.process(f), fresh.process(f)
+        for name in ("composite", "sss", "counts", "alpha", "variance", "gamma"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert np.array_equal(x, y, equal_nan=True), (f.number, name)
+    assert cached._geometry.hits == 3  # frames 2, 3 and 6
+
+
 def test_float16_history_stays_close_to_float32():
     out = {}
     for prec in ("float32", "float16"):
