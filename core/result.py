@@ -36,10 +36,11 @@ class FrameResult:
     composite : (H, W, 3) float32, ``Combined − albedo·B + albedo·L`` on SSS pixels, linear
     counts : (H, W) int32, distant samples per pixel (separable: reads per pixel)
     alpha : (H, W) float32, CV coefficient used (1 for CCV, 0 where none)
-    gamma : (H, W, 3) float32, distant energy ratio per channel
+    gamma : (H, W, 3) float32, distant energy ratio per channel (read-only: frames that
+        reuse a still scene's Geometry share it, see core.geometry.GeometryCache)
     variance : (H, W) float32, tracked variance σ² after the update (luminance²)
     valid_history : (H, W) bool, the history used for the counts was valid
-    mask : (H, W) bool, SSS pixels
+    mask : (H, W) bool, SSS pixels (read-only, shared like ``gamma``)
     spp : float, mean count over SSS pixels
     samples : int, samples taken (separable: pixel reads)
     pass_ms : float, wall time of the sampling step (separable: both passes) only
@@ -178,10 +179,10 @@ def assemble(
         composite=comp,
         counts=geom.to_image(counts, 0, np.int32),
         alpha=geom.to_image(zeros if alpha is None else alpha, backend=backend),
-        gamma=geom.to_image(geom.gamma, backend=backend),
+        gamma=geom.gamma_image(backend),
         variance=geom.to_image(zeros if variance is None else variance, backend=backend),
         valid_history=geom.to_image(np.zeros(n, bool) if valid is None else valid, False, bool),
-        mask=geom.mask(),
+        mask=geom.mask_image,
         spp=float(np.mean(counted)) if pixels else 0.0,
         samples=int(samples),
         pass_ms=pass_ms,

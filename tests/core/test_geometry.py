@@ -105,14 +105,22 @@ def test_geometry_cache_reuses_a_still_scene_bit_for_bit(backend):
     profiles = ProfileCache(SSSParams())
     cache = GeometryCache()
     options = dict(surface_distance=True, core_only=True, backend=backend)
-    directs = []
+    directs, images = [], []
     for f in frames:
         profile = profiles.get(f)
         geom = cache.prepare(f, profile, **options)
-        assert _geometry_fields_equal(geom, prepare(f, profile, **options))
+        fresh = prepare(f, profile, **options)
+        assert _geometry_fields_equal(geom, fresh)
         directs.append(geom.direct)
+        # The γ and mask images: made once, read-only, handed on to the hits.
+        gamma, mask = geom.gamma_image(backend), geom.mask_image
+        assert np.array_equal(gamma, fresh.to_image(fresh.gamma)) and gamma.dtype == np.float32
+        assert np.array_equal(mask, fresh.mask())
+        assert not gamma.flags.writeable and not mask.flags.writeable
+        images.append((gamma, mask))
     assert cache.hits == 2
     assert not np.array_equal(directs[0], directs[1])  # taken from each frame's passes
+    assert images[2][0] is images[0][0] and images[2][1] is images[0][1]
 
 
 def test_geometry_cache_prepares_anew_when_geometry_changes():

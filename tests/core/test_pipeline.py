@@ -85,7 +85,7 @@ def test_reused_geometry_gives_the_same_frames(method):
     fresh._geometry = Fresh()
     for f in frames:
         a, b = cached.process(f), fresh.process(f)
-        for name in ("composite", "sss", "counts", "alpha", "variance", "gamma"):
+        for name in ("composite", "sss", "counts", "alpha", "variance", "gamma", "mask"):
             x, y = getattr(a, name), getattr(b, name)
             assert np.array_equal(x, y, equal_nan=True), (f.number, name)
     assert cached._geometry.hits == 3  # frames 2, 3 and 6
