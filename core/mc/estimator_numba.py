@@ -28,7 +28,9 @@ bit-identical to a whole-frame run on the same backend).
 The module also holds compiled twins of the other per-frame steps, each the
 same arithmetic as its NumPy original and tested bit for bit against it: the
 depth-buffer surface, the Burley region, the SPVG counts and history update,
-the composite and float maps, and the history reprojection.
+the whole history step of the methods without an online control variate
+(tracked luminance, update and float32 stores in place), the composite and
+float maps, and the history reprojection.
 
 This module imports numba at import time; import it through
 :mod:`core.mc.backend`, which does so lazily and falls back to NumPy.
@@ -980,6 +982,11 @@ def warm_up() -> None:
     one, yes = np.ones(1), np.ones(1, np.bool_)
     _counts_pass(one, one, yes, one, 1e-4, 64.0, 6.0, 0.1, 8.0, 64.0, 0.01, np.empty(1, np.int32))
     _update_pass(one, one, one, yes, one, one, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty((3, 1)))
+    one32, at0, g3 = np.ones(1, np.float32), np.zeros(1, np.int64), np.ones((1, 3))
+    _history_pass(
+        one32, one32.copy(), one32.copy(), at0, yes, g3, g3, g3, one,
+        np.ones(1, np.int32), True, 1.0, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty(1), yes.copy(),
+    )  # fmt: skip
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
     _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
@@ -1293,24 +1300,164 @@ def spvg_update(mu, var, mbar, valid, tracked, counts, params):
     return out[0], out[1], out[2], np.asarray(counts) > 0
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _spvg_step(s, ok, mu, var, mbar, count, keep, spread, eta, s0, n_init):
+    """One pixel's Eq. 5–7 with the no-history rule (core.mc.adaptive.update_history):
+    μ, σ², m̄ at t from those at t−1, the tracked value s and the count (float64)."""
+    big = _F64_MAX
+    mu_prev = mu if ok else s
+    var_prev = var if ok else s0
+    mbar_prev = mbar if ok else n_init
+    dev = s - mu_prev
+    var_new = keep * var_prev + spread * dev * dev
+    mu_new = keep * mu_prev + eta * s if ok else s
+    mbar_new = keep * mbar_prev + eta * count
+    var_new = var_new if ok else s0
+    var_new = _finite(var_new, s0, big, -big)
+    return (
+        _finite(mu_new, 0.0, big, -big),
+        var_new if var_new > 0.0 else 0.0,
+        _finite(mbar_new, n_init, big, 0.0),
+    )
+
+
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _update_pass(mu, var, mbar, valid, tracked, counts, keep, spread, eta, s0, n_init, out):
-    big = _F64_MAX
     for i in numba.prange(out.shape[1]):
-        s = tracked[i]
-        ok = valid[i]
-        mu_prev = mu[i] if ok else s
-        var_prev = var[i] if ok else s0
-        mbar_prev = mbar[i] if ok else n_init
-        dev = s - mu_prev
-        var_new = keep * var_prev + spread * dev * dev
-        mu_new = keep * mu_prev + eta * s if ok else s
-        mbar_new = keep * mbar_prev + eta * counts[i]
-        var_new = var_new if ok else s0
-        var_new = _finite(var_new, s0, big, -big)
-        out[0, i] = _finite(mu_new, 0.0, big, -big)
-        out[1, i] = var_new if var_new > 0.0 else 0.0
-        out[2, i] = _finite(mbar_new, n_init, big, 0.0)
+        out[0, i], out[1, i], out[2, i] = _spvg_step(
+            tracked[i], valid[i], mu[i], var[i], mbar[i], counts[i], keep, spread, eta, s0, n_init
+        )
+
+
+def history_step(buffers, index, valid, distant, gamma, b, weight, counts, residual, params):
+    """The history step of ``MonteCarloProcessor._update`` without an online control
+    variate, in one parallel pass over the SSS pixels, on a float32 history (stored
+    unscaled): the tracked luminance, Eq. 5–7 and the stores into the history's
+    buffers at ``index``, in place. The same float64 operations in the same order as
+    the NumPy step, and the same float32 stores (tests/core/test_backend.py).
+
+    Parameters
+    ----------
+    buffers : (mu, var, mbar), the History's (H, W) float32 buffers (written in place)
+    index : (P,) int64, flat pixel index; valid : (P,) bool, the history was valid
+    distant, gamma, b : (P, 3) float64, the distant estimate, γ and B
+    weight : (P,) float64, Subsurface Weight; counts : (P,) int, m_t
+    residual : bool, track Res = f̄ − G (constant control variate) instead of f̄
+    params : SSSParams (exposure, η, σ0², initial count)
+
+    Returns
+    -------
+    var : (P,) float64, σ² at t where m_t > 0, else 0
+    new_valid : (H, W) bool, the pixels with m_t > 0
+    """
+    mu, var, mbar = buffers
+    h, w = mu.shape
+    out = np.empty(index.shape[0])
+    new_valid = np.zeros(h * w, np.bool_)
+    eta = params.eta
+    _history_pass(
+        mu.reshape(-1),
+        var.reshape(-1),
+        mbar.reshape(-1),
+        index,
+        valid,
+        np.ascontiguousarray(distant, dtype=np.float64),
+        np.ascontiguousarray(gamma, dtype=np.float64),
+        np.ascontiguousarray(b, dtype=np.float64),
+        np.ascontiguousarray(weight, dtype=np.float64),
+        np.ascontiguousarray(counts),
+        bool(residual),
+        float(params.exposure),
+        1.0 - eta,
+        eta * (1.0 - eta),
+        eta,
+        float(params.target_variance),
+        float(params.initial_count),
+        out,
+        new_valid,
+    )
+    return out, new_valid.reshape(h, w)
+
+
+#: Bound on the tracked luminances (core.mc.processor.TRACK_LIMIT).
+_TRACK_LIMIT = 1e150
+_F32_MAX = float(np.finfo(np.float32).max)
+_R0, _R1, _R2 = 0.2126, 0.7152, 0.0722
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _bounded(x):
+    """core.mc.processor._bounded of one float64: clipped to ±TRACK_LIMIT, NaN → 0."""
+    if np.isnan(x):
+        return 0.0
+    return min(max(x, -_TRACK_LIMIT), _TRACK_LIMIT)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _stored(x):
+    """History.write of one float64 into float32 storage: ±inf → ±max, NaN → 0."""
+    if np.isnan(x):
+        return np.float32(0.0)
+    return np.float32(min(max(x, -_F32_MAX), _F32_MAX))
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _history_pass(
+    mu,
+    var,
+    mbar,
+    index,
+    valid,
+    distant,
+    gamma,
+    b,
+    weight,
+    counts,
+    residual,
+    exposure,
+    keep,
+    spread,
+    eta,
+    s0,
+    n_init,
+    out,
+    new_valid,
+):
+    for i in numba.prange(index.shape[0]):
+        # f̄ = (Î·exposure)·Rec.709 and G = ((γ·B)·exposure)·Rec.709, times the weight.
+        f = (
+            (distant[i, 0] * exposure) * _R0
+            + (distant[i, 1] * exposure) * _R1
+            + (distant[i, 2] * exposure) * _R2
+        )
+        g = (
+            ((gamma[i, 0] * b[i, 0]) * exposure) * _R0
+            + ((gamma[i, 1] * b[i, 1]) * exposure) * _R1
+            + ((gamma[i, 2] * b[i, 2]) * exposure) * _R2
+        )
+        f = _bounded(f * weight[i])
+        g = _bounded(g * weight[i])
+        s = f - 1.0 * g if residual else f
+        j = index[i]
+        m = counts[i]
+        mu_t, var_t, mbar_t = _spvg_step(
+            s,
+            valid[i],
+            np.float64(mu[j]),
+            np.float64(var[j]),
+            np.float64(mbar[j]),
+            np.float64(m),
+            keep,
+            spread,
+            eta,
+            s0,
+            n_init,
+        )
+        mu[j] = _stored(mu_t)
+        var[j] = _stored(var_t)
+        mbar[j] = _stored(mbar_t)
+        out[i] = var_t if m > 0 else 0.0
+        new_valid[j] = m > 0
 
 
 # -- the composite and the per-pixel maps (core.result) -------------------------------

@@ -22,9 +22,9 @@ from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
-from . import adaptive, control_variates, temporal
+from . import adaptive, backend, control_variates, temporal
 from .estimator import estimate_distant
-from .history import History
+from .history import H_FIELDS, History
 
 #: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
 #: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
@@ -33,6 +33,13 @@ PROXY_KERNEL = SeparableParams(kernel="pre_integrated", taps=17, filter="linear"
 
 #: Bound on the tracked luminances f̄, G (their squares stay finite in float64).
 TRACK_LIMIT = 1e150
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    """(P,) Rec.709 luminance of (P, 3) float64 ``rgb``, summed in channel order (the
+    compiled history step's order; a matrix product's depends on the BLAS)."""
+    r, g, b = REC709
+    return rgb[:, 0] * r + rgb[:, 1] * g + rgb[:, 2] * b
 
 
 def _bounded(values: np.ndarray) -> np.ndarray:
@@ -242,20 +249,38 @@ class MonteCarloProcessor:
         """History (and CV) update after sampling; returns (α, σ²) per SSS pixel."""
         p = self.params
         idx = geom.index
+        cv = self.method.cv
+        if self._compiled_step(hist):
+            # One compiled pass: the same operations and stores (see history_step).
+            from .estimator_numba import history_step
+
+            var, hist.valid = history_step(
+                tuple(hist.buffers[k] for k in H_FIELDS),
+                idx,
+                valid,
+                distant,
+                geom.gamma,
+                b,
+                geom.weight,
+                m,
+                cv == "constant",
+                p,
+            )
+            alpha = np.where(m > 0, 1.0 if cv == "constant" else 0.0, 0.0)
+            return alpha, var
         # Tracked luminances are bounded so that their squares (σ², Σ) stay
         # finite in float64 whatever the exposure and HDR input.
         # What the image shows of the distant estimate is w·Î (Subsurface Weight w),
         # so that is what is tracked: a half-weight material needs fewer samples.
         with np.errstate(over="ignore", invalid="ignore"):
-            f_bar = (distant * p.exposure) @ REC709
-            g_known = ((geom.gamma * b) * p.exposure) @ REC709
+            f_bar = _luminance(distant * p.exposure)
+            g_known = _luminance((geom.gamma * b) * p.exposure)
             if not np.all(geom.weight == 1.0):
                 f_bar *= geom.weight
                 g_known *= geom.weight
         f_bar = _bounded(f_bar)
         g_known = _bounded(g_known)
         alpha = np.zeros(geom.size)
-        cv = self.method.cv
         if cv == "online":
             alpha = self._online_cv(hist, idx, valid, m, f_bar, g_known)
             tracked = control_variates.residual(f_bar, g_known, alpha)
@@ -279,6 +304,18 @@ class MonteCarloProcessor:
         hist.valid = hist.mask_of(idx, new_valid)
         alpha = np.where(m > 0, alpha, 0.0)
         return alpha, np.where(m > 0, var, 0.0)
+
+    def _compiled_step(self, hist: History) -> bool:
+        """The history step runs as one compiled pass: the numba backend, no online
+        control variate, and float32 buffers (stored unscaled) it can write in place."""
+        return (
+            self.method.cv != "online"
+            and backend.compiled(self.params.backend)
+            and all(
+                hist.buffers[k].dtype == np.float32 and hist.buffers[k].flags.c_contiguous
+                for k in H_FIELDS
+            )
+        )
 
     def _online_cv(self, hist, idx, valid, m, f_bar, g_known) -> np.ndarray:
         """α from the covariance history of Z = [f̄, ḡ] (Alg. 2), then one EMCM step (Eq. 33)."""

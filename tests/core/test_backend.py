@@ -233,6 +233,59 @@ def test_compiled_reprojection_equals_numpy(precision, moving):
     assert estimator_numba._reproject_pass.signatures  # the compiled pass ran
 
 
+@pytest.mark.parametrize("method", ["as_ccv", "as"])
+@pytest.mark.parametrize("weighted", [True, False])
+def test_compiled_history_step_equals_numpy(method, weighted, monkeypatch):
+    """The compiled history step (tracked luminance, Eq. 5–7, float32 stores in place)
+    leaves NumPy's history bit for bit: μ, σ², m̄, the valid mask, and the α and σ²
+    maps. Estimates with NaN, ±inf and values beyond float32 (stored as ±max), huge
+    B (the tracked value's bound), weights 0…1 or all 1 (NumPy then skips the
+    product), invalid history and pixels without samples."""
+    import types
+
+    from cvsss.core.mc import estimator_numba
+    from cvsss.core.mc.history import H_FIELDS, History
+
+    rng = np.random.default_rng(5)
+    shape, n = (19, 31), 400
+    index = np.sort(rng.choice(shape[0] * shape[1], n, replace=False)).astype(np.int64)
+    distant = rng.normal(0, 2, (n, 3))
+    distant[:6, 0] = [np.nan, np.inf, -np.inf, 1e39, -1e200, 1e300]
+    b = rng.uniform(0, 4, (n, 3))
+    b[6:9] = [1e160, 1e308, 0.0]
+    weight = rng.uniform(0, 1, n) if weighted else np.ones(n)
+    weight[:3] = [0.0, 1.0, 0.5] if weighted else 1.0
+    geom = types.SimpleNamespace(
+        index=index, gamma=rng.uniform(0, 1, (n, 3)), weight=weight, size=n
+    )
+    m = rng.integers(0, 5, n).astype(np.int32)
+    valid = rng.random(n) < 0.7
+    hist = History.empty(shape, "float32", 1e-3, 1e-4)
+    for k in H_FIELDS:
+        hist.buffers[k][...] = rng.uniform(0, 3, shape)
+    hist.buffers["var"].reshape(-1)[index[:4]] = [3e38, 0.0, 1e-30, 7.0]
+    calls = []
+    step = estimator_numba.history_step
+    monkeypatch.setattr(estimator_numba, "history_step", lambda *a: calls.append(1) or step(*a))
+    out = {}
+    for name in ("numpy", "numba"):
+        params = SSSParams(backend=name, exposure=2.5)
+        proc = make_processor(method, params)
+        h = History.from_arrays(hist.to_arrays())
+        with np.errstate(all="ignore"):
+            alpha, var = proc._update(h, geom, m, valid, distant, b)
+        out[name] = (h, alpha, var)
+    assert calls == [1]  # the numba run took the compiled step, the NumPy one did not
+    (a, alpha_a, var_a), (c, alpha_c, var_c) = out["numpy"], out["numba"]
+    for k in H_FIELDS:
+        assert c.buffers[k].dtype == np.float32
+        assert np.array_equal(a.buffers[k].view(np.uint32), c.buffers[k].view(np.uint32)), k
+    assert np.array_equal(a.valid, c.valid) and a.valid.any() and not a.valid.all()
+    assert np.array_equal(alpha_a.view(np.uint64), alpha_c.view(np.uint64))
+    assert np.array_equal(var_a.view(np.uint64), var_c.view(np.uint64))
+    assert np.isfinite(a.buffers["mu"]).all() and (a.buffers["var"] >= 0).all()
+
+
 def test_total_ms_covers_the_composite(monkeypatch):
     """``total_ms`` is the whole ``process()`` call: the composite and the maps built
     after the sampling included (a composite slowed by 50 ms shows in it)."""
