@@ -5,6 +5,7 @@ Two histories per pixel, as in the paper (P Alg. 3):
 - ``H = (μ, σ², m̄)``, three floats (SPVG);
 - ``J = (Σ_xx, Σ_xy, Σ_yy, ζ_f, ζ_g)`` for the online control variate (the
   paper drops Σ_xx; we keep it for the α/variance maps, it costs one float);
+  the methods without one hold no J;
 - with temporal reuse, the accumulated value and its frame count, and last
   frame's proxy and control (:data:`T_FIELDS`, 10 floats; core.mc.temporal).
 
@@ -115,6 +116,7 @@ class History:
         *,
         scaled: bool = True,
         temporal: bool = False,
+        cv: bool = True,
     ) -> History:
         """An all-invalid history.
 
@@ -129,10 +131,14 @@ class History:
             paper's η_cv (kept only to measure that; see module doc).
         temporal : bool
             Also hold the temporal-reuse buffers (:data:`T_FIELDS`).
+        cv : bool
+            Hold the online control variate's J (:data:`J_FIELDS`). A method
+            without one leaves them out: five buffers fewer to reproject and
+            store each frame.
         """
         dt = _storage(precision)
         half = precision == "float16" and scaled
-        names = (*H_FIELDS, *J_FIELDS, *(T_FIELDS if temporal else ()))
+        names = (*H_FIELDS, *(J_FIELDS if cv else ()), *(T_FIELDS if temporal else ()))
         buffers = {name: np.zeros(shape, dtype=dt) for name in names}
         return cls(
             shape=tuple(shape),

@@ -107,6 +107,7 @@ class MonteCarloProcessor:
                 p.eta_cv,
                 p.target_variance,
                 temporal=bool(self.method.temporal),
+                cv=self.method.cv == "online",
             )
         elif self.history.shape != frame.shape:
             raise ValueError(

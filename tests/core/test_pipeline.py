@@ -91,6 +91,34 @@ def test_reused_geometry_gives_the_same_frames(method):
     assert cached._geometry.hits == 3  # frames 2, 3 and 6
 
 
+def test_only_the_online_control_variate_keeps_its_history_j():
+    """J (Σ, ζ) is the online control variate's: the other adaptive methods hold H (and
+    the temporal buffers) only, and their frames equal those of a history that also
+    carries a J it never reads."""
+    from cvsss.core.mc.history import H_FIELDS, J_FIELDS, T_FIELDS, History
+
+    frames = list(sequence("flash", 3, 48, 27))
+    for method in ("as", "as_ccv", "as_ocv", "as_ccv_t", "as_ocv_t"):
+        m = METHODS[method]
+        proc = make_processor(method, SSSParams())
+        results = [proc.process(f) for f in frames]
+        want = {
+            *H_FIELDS,
+            *(J_FIELDS if m.cv == "online" else ()),
+            *(T_FIELDS if m.temporal else ()),
+        }
+        assert set(proc.history.buffers) == want, method
+        if m.cv != "online":
+            full = make_processor(method, SSSParams())
+            p = full.params
+            full.history = History.empty(
+                frames[0].shape, p.history_precision, p.eta_cv, p.target_variance,
+                temporal=bool(m.temporal),
+            )  # fmt: skip
+            for f, r in zip(frames, results):
+                assert np.array_equal(full.process(f).composite, r.composite), method
+
+
 def test_float16_history_stays_close_to_float32():
     out = {}
     for prec in ("float32", "float16"):
