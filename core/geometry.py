@@ -570,36 +570,41 @@ class GeometryCache:
     Reuse needs the same pass bits, camera, crop, material table and profile
     object (core.profiles.factory.ProfileCache returns the same object while the
     materials are unchanged) and the same options; anything else prepares anew.
-    Returned Geometries share their arrays with the cached one: callers must
-    not write into them (none does).
+    One entry is kept per crop (the whole frame is one; a pooled tile processor
+    of core.tiling serves many crops), at most :attr:`MAX_ENTRIES`, the oldest
+    dropped first. Returned Geometries share their arrays with the cached one:
+    callers must not write into them (none does).
     """
 
+    #: Crops remembered (a 3840×2160 image in 256-pixel tiles has 135).
+    MAX_ENTRIES = 256
+
     def __init__(self) -> None:
-        self._passes: tuple | None = None
-        self._key: tuple | None = None
-        self._profile: Profile | None = None
-        self._geom: Geometry | None = None
+        # crop -> (key, profile, copies of the passes, Geometry)
+        self._entries: dict[tuple | None, tuple] = {}
         #: Frames served from the cache (for tests and reports).
         self.hits = 0
 
     def prepare(self, frame: Frame, profile: Profile, **options) -> Geometry:
         """:func:`prepare` (same keyword options), reusing the last result where valid."""
+        # What prepare() reads of the crop (its light_scale changes with the lighting).
+        crop = frame.crop and (frame.crop.image, frame.crop.origin, frame.crop.core)
         key = (
             frame.shape,
             frame.camera,
-            frame.crop,
             tuple(slot_keys(frame.materials).tolist()),
             tuple(sorted(options.items())),
         )
         passes = (frame.depth, frame.material, frame.objects)
-        geom = self._geom
+        entry = self._entries.get(crop)
         if (
-            geom is not None
-            and key == self._key
-            and self._profile is profile
-            and all(_same_bits(a, b) for a, b in zip(self._passes, passes))
+            entry is not None
+            and key == entry[0]
+            and profile is entry[1]
+            and all(_same_bits(a, b) for a, b in zip(entry[2], passes))
         ):
             self.hits += 1
+            geom = entry[3]
             fresh = dataclasses.replace(
                 geom, weight=_weight(frame, geom.index, geom.mat), direct=_direct(frame, geom.index)
             )
@@ -610,6 +615,8 @@ class GeometryCache:
                     fresh.__dict__[name] = geom.__dict__[name]
             return fresh
         geom = prepare(frame, profile, **options)
-        self._key, self._profile, self._geom = key, profile, geom
-        self._passes = tuple(_snapshot(a) for a in passes)
+        self._entries.pop(crop, None)
+        while len(self._entries) >= self.MAX_ENTRIES:
+            del self._entries[next(iter(self._entries))]
+        self._entries[crop] = (key, profile, tuple(_snapshot(a) for a in passes), geom)
         return geom

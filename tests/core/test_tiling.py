@@ -133,6 +133,24 @@ def test_tiles_equal_whole_image_with_touching_objects():
     assert not np.array_equal(plain[-1].composite, whole[-1].composite)
 
 
+@pytest.mark.parametrize("name", ["as_ccv", "separable"])
+def test_tiles_of_a_still_scene_reuse_their_geometry(name):
+    """The pooled tile processors keep one Geometry per crop (core.geometry.GeometryCache):
+    the tiles of a still scene's later frames reuse theirs, and the result is still the
+    whole image's, bit for bit."""
+    from cvsss.core import tiling
+
+    frames = [synthetic.scene_frame("flash", n, W, H) for n in (1, 2, 3)]
+    tiling._POOL.clear()
+    whole, whole_state = run_whole(name, FAST, MethodOptions(), frames)
+    tiled, tiled_state, session = run_tiled(name, FAST, MethodOptions(), frames)
+    for a, b in zip(whole, tiled):
+        assert differences(a, b) == []
+    assert same_state(whole_state, tiled_state)
+    hits = sum(p._geometry.hits for pool in tiling._POOL.values() for p in pool)
+    assert hits == 2 * len(session.cores)  # every tile of frames 2 and 3
+
+
 def test_odd_tile_sizes_and_a_tile_larger_than_the_image():
     whole, state = run_whole("as_ccv", FAST, MethodOptions(), FRAMES[:2])
     for tile in (7, 31, 200):
