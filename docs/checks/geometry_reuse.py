@@ -17,9 +17,13 @@ Subsurface Weight from the new frame. On the bench's flash frame
   (the same processor state restored before each call), interleaved, minimum
   and median, and whether both give the same composite and counts.
 
-Run from the repo root:
+With ``--passes DIR ...`` it instead processes the first ``--frames`` pass
+EXRs of each folder (``make demo`` renders them with Cycles into
+``out/demo/SCENE/passes``) with ``as_ccv`` and prints how many frames reused
+the previous frame's Geometry. Run from the repo root:
 
     .venv/bin/python docs/checks/geometry_reuse.py [WxH ...] [--calls N]
+    .venv/bin/python docs/checks/geometry_reuse.py --passes out/demo/*/passes [--frames 8]
 """
 
 import argparse
@@ -98,11 +102,29 @@ def frame_calls(w: int, h: int, calls: int) -> None:
     print(f"  same composite and counts: {same}")
 
 
+def pass_folders(folders: list[str], count: int) -> None:
+    from pathlib import Path
+
+    from cvsss.core.io.exr import read_frame
+
+    for folder in folders:
+        files = sorted(Path(folder).glob("*.exr"))[:count]
+        proc = make_processor("as_ccv", SSSParams(backend="numba"))
+        for path in files:
+            proc.process(read_frame(path))
+        print(f"{folder}: {proc._geometry.hits} of {len(files)} frames reused the geometry")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sizes", nargs="*", default=["1280x720", "1920x1080"])
     ap.add_argument("--calls", type=int, default=8)
+    ap.add_argument("--passes", nargs="+", help="pass folders to count reused frames in")
+    ap.add_argument("--frames", type=int, default=8)
     a = ap.parse_args()
+    if a.passes:
+        pass_folders(a.passes, a.frames)
+        return
     for size in a.sizes:
         w, h = (int(v) for v in size.split("x"))
         print(f"{w}x{h}:")
