@@ -571,13 +571,19 @@ class GeometryCache:
     object (core.profiles.factory.ProfileCache returns the same object while the
     materials are unchanged) and the same options; anything else prepares anew.
     One entry is kept per crop (the whole frame is one; a pooled tile processor
-    of core.tiling serves many crops), at most :attr:`MAX_ENTRIES`, the oldest
-    dropped first. Returned Geometries share their arrays with the cached one:
-    callers must not write into them (none does).
+    of core.tiling serves many crops), at most :attr:`MAX_ENTRIES` and
+    :attr:`MAX_BYTES`, the oldest dropped first; the newest is always kept. A
+    stale entry is dropped before its crop is prepared anew, so a moving scene
+    never holds two Geometries of one crop. Returned Geometries share their
+    arrays with the cached one: callers must not write into them (none does).
     """
 
     #: Crops remembered (a 3840×2160 image in 256-pixel tiles has 135).
     MAX_ENTRIES = 256
+    #: Bytes the entries may hold together (about one 3840×2160 frame's Geometry at
+    #: 40 % SSS pixels; the newest entry is kept even when it alone holds more): a
+    #: tile processor serving every crop of a large image keeps some of them, not all.
+    MAX_BYTES = 1 << 30
 
     def __init__(self) -> None:
         # crop -> (key, profile, copies of the passes, Geometry)
@@ -618,9 +624,23 @@ class GeometryCache:
                 if name in geom.__dict__:
                     fresh.__dict__[name] = geom.__dict__[name]
             return fresh
+        self._entries.pop(crop, None)  # stale: free it before preparing anew
         geom = prepare(frame, profile, **options)
-        self._entries.pop(crop, None)
-        while len(self._entries) >= self.MAX_ENTRIES:
-            del self._entries[next(iter(self._entries))]
-        self._entries[crop] = (key, profile, tuple(_snapshot(a) for a in passes), geom)
+        entries = self._entries
+        entries[crop] = (key, profile, tuple(_snapshot(a) for a in passes), geom)
+        while len(entries) > 1 and (
+            len(entries) > self.MAX_ENTRIES
+            or sum(_entry_bytes(e) for e in entries.values()) > self.MAX_BYTES
+        ):
+            del entries[next(iter(entries))]
         return geom
+
+
+def _entry_bytes(entry: tuple) -> int:
+    """Bytes of the arrays a GeometryCache entry holds (its copies of the passes and
+    its Geometry's arrays, surface and images)."""
+    geom = entry[3]
+    arrays = [*entry[2], *vars(geom).values()]
+    if geom.surface is not None:
+        arrays += [geom.surface.area, geom.surface.normal]
+    return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))

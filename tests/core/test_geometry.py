@@ -190,3 +190,44 @@ def test_geometry_cache_keeps_its_own_copy_of_the_passes():
     geom = cache.prepare(frame, profile)
     assert cache.hits == 0
     assert _geometry_fields_equal(geom, prepare(frame, profile))
+
+
+def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
+    """One entry per crop, the oldest dropped beyond MAX_ENTRIES or MAX_BYTES; the newest
+    is kept even when it alone is larger than MAX_BYTES (a whole frame still hits)."""
+    import dataclasses
+
+    from cvsss.core.frame import Crop
+    from cvsss.core.geometry import GeometryCache, _entry_bytes, prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import ProfileCache
+
+    base = _lit_frames(1)[0]
+    profile = ProfileCache(SSSParams()).get(base)
+    h, w = base.shape
+    crops = [
+        dataclasses.replace(base, crop=Crop(image=(h, w), origin=(0, 0), core=(0, h, x, x + 16)))
+        for x in (0, 16, 32)
+    ]
+    cache = GeometryCache()
+    for f in crops + crops:
+        cache.prepare(f, profile, surface_distance=True)
+    assert cache.hits == 3 and len(cache._entries) == 3
+    sizes = [_entry_bytes(e) for e in cache._entries.values()]
+    assert all(n > base.depth.nbytes for n in sizes)
+
+    cache = GeometryCache()
+    cache.MAX_BYTES = sum(sorted(sizes)[1:])  # room for any two, not three
+    for f in crops + crops:
+        cache.prepare(f, profile, surface_distance=True)
+    assert cache.hits == 0 and len(cache._entries) == 2  # each came back after eviction
+    cache.MAX_ENTRIES = 1
+    cache.prepare(crops[0], profile, surface_distance=True)
+    assert len(cache._entries) == 1
+
+    cache = GeometryCache()
+    cache.MAX_BYTES = 1  # smaller than any entry: the newest stays
+    for _ in range(3):
+        geom = cache.prepare(base, profile, surface_distance=True)
+    assert cache.hits == 2 and len(cache._entries) == 1
+    assert _geometry_fields_equal(geom, prepare(base, profile, surface_distance=True))
