@@ -44,6 +44,7 @@ import types
 import numba
 import numpy as np
 
+from ..eval.color import REC709
 from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, R2_STEP_U32
 
 #: Geometry modes of the kernel.
@@ -985,7 +986,8 @@ def warm_up() -> None:
     one32, at0, g3 = np.ones(1, np.float32), np.zeros(1, np.int64), np.ones((1, 3))
     _history_pass(
         one32, one32.copy(), one32.copy(), at0, yes, g3, g3, g3, one,
-        np.ones(1, np.int32), True, 1.0, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty(1), yes.copy(),
+        np.ones(1, np.int32), True, 1.0, 0.75, 0.1875, 0.25, 1e-4, 64.0, 1e150, np.empty(1),
+        yes.copy(),
     )  # fmt: skip
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
@@ -1350,6 +1352,8 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
     var : (P,) float64, σ² at t where m_t > 0, else 0
     new_valid : (H, W) bool, the pixels with m_t > 0
     """
+    from .processor import TRACK_LIMIT
+
     mu, var, mbar = buffers
     h, w = mu.shape
     out = np.empty(index.shape[0])
@@ -1373,24 +1377,23 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
         eta,
         float(params.target_variance),
         float(params.initial_count),
+        float(TRACK_LIMIT),
         out,
         new_valid,
     )
     return out, new_valid.reshape(h, w)
 
 
-#: Bound on the tracked luminances (core.mc.processor.TRACK_LIMIT).
-_TRACK_LIMIT = 1e150
 _F32_MAX = float(np.finfo(np.float32).max)
-_R0, _R1, _R2 = 0.2126, 0.7152, 0.0722
+_R0, _R1, _R2 = (float(v) for v in REC709)
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _bounded(x):
-    """core.mc.processor._bounded of one float64: clipped to ±TRACK_LIMIT, NaN → 0."""
+def _bounded(x, limit):
+    """core.mc.processor._bounded of one float64: clipped to ±limit, NaN → 0."""
     if np.isnan(x):
         return 0.0
-    return min(max(x, -_TRACK_LIMIT), _TRACK_LIMIT)
+    return min(max(x, -limit), limit)
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -1420,6 +1423,7 @@ def _history_pass(
     eta,
     s0,
     n_init,
+    limit,
     out,
     new_valid,
 ):
@@ -1435,8 +1439,8 @@ def _history_pass(
             + ((gamma[i, 1] * b[i, 1]) * exposure) * _R1
             + ((gamma[i, 2] * b[i, 2]) * exposure) * _R2
         )
-        f = _bounded(f * weight[i])
-        g = _bounded(g * weight[i])
+        f = _bounded(f * weight[i], limit)
+        g = _bounded(g * weight[i], limit)
         s = f - 1.0 * g if residual else f
         j = index[i]
         m = counts[i]
