@@ -47,6 +47,7 @@ __all__ = [
     "read_combined",
     "read_frame",
     "read_result",
+    "use_threads",
     "vector_from_motion",
     "write_passes",
     "write_result",
@@ -176,10 +177,35 @@ def vector_from_motion(motion: np.ndarray) -> np.ndarray:
     return out
 
 
+def use_threads() -> int:
+    """Let OpenEXR (de)compress a file's blocks on every core this process may use.
+
+    The bindings' library starts with no worker threads, so a ZIP-compressed
+    file was written and read on one core: at 1280×720 a result EXR took 370 ms
+    to write and 100 ms to read, against 210 and 56 ms with 2 threads on this
+    project's 2-core host (one-off timing). Each block is compressed on its own,
+    so the file's bytes are the same whatever the count. A count someone already
+    set (a host application, a test) is left as it is.
+
+    Returns
+    -------
+    int, OpenEXR's global thread count after the call
+    """
+    if OpenEXR.global_thread_count() == 0:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except (AttributeError, OSError):  # not on Linux
+            cores = os.cpu_count() or 1
+        if cores > 1:
+            OpenEXR.set_global_thread_count(cores)
+    return OpenEXR.global_thread_count()
+
+
 # -- reading EXR files ----------------------------------------------------------------
 def _open_exr(path: Path) -> OpenEXR.File:
     """Read every part and channel of ``path`` or raise PassError."""
     name = os.fspath(path)
+    use_threads()
     if not path.exists():
         raise PassError(f"{name}: no such file")
     if not path.is_file():
@@ -687,6 +713,7 @@ def write_passes(
         extra = {"Software": "cvsss", "Frame": f"{frame.number:03d}"} if not parts else {}
         channels = {f"{part_name}.{c}": _encode(a, half) for c, a in comps.items()}
         parts.append(OpenEXR.Part(_header(**extra), channels, part_name))
+    use_threads()
     exr = OpenEXR.File(parts)
 
     sidecar = make_sidecar(
@@ -773,4 +800,5 @@ def write_result(
         else:
             for i, c in enumerate(comps):
                 channels[f"{layer}.{c}"] = np.ascontiguousarray(array[..., i])
+    use_threads()
     write_files([(path, OpenEXR.File(header, channels))], overwrite)

@@ -68,7 +68,7 @@ import numpy as np
 import OpenEXR
 from bpy.app.handlers import persistent
 
-from ...core.io.exr import quiet_native_stderr, read_frame
+from ...core.io.exr import quiet_native_stderr, read_frame, use_threads
 from ...core.io.sidecar import write_sidecar
 from ...core.run import FrameStream, RunSpec
 from . import materials as sss_materials
@@ -237,6 +237,7 @@ class DisplaySetup(SceneSetup):
 
 def read_alpha(path: Path, layer: str) -> np.ndarray | None:
     """The Combined alpha of a pass EXR (top row first), or None when it has none."""
+    use_threads()
     with quiet_native_stderr():
         exr = OpenEXR.File(str(path), separate_channels=True)
     for part in exr.parts:

@@ -41,7 +41,7 @@ from ...core.camera import Camera
 from ...core.frame import MaterialSpec
 from ...core.io.atomic import commit, temp_path
 from ...core.io.errors import OutputError
-from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN
+from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN, use_threads
 from ...core.io.sidecar import make_sidecar, write_sidecar
 from . import materials as sss_materials
 
@@ -646,6 +646,7 @@ def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]
     ``edit(part name, {channel: pixels})`` returns the part's new name and
     channels, or None to drop the part.
     """
+    use_threads()
     exr = OpenEXR.File(str(path), separate_channels=True)
     skip = ("name", "channels", "chunkCount", "version", "type")
     parts = []

@@ -24,6 +24,7 @@ from cvsss.core.io.exr import (
     motion_from_vector,
     read_frame,
     read_result,
+    use_threads,
     vector_from_motion,
     write_passes,
     write_result,
@@ -769,3 +770,41 @@ def test_read_real_blender_render(tmp_path):
     rows, cols = np.nonzero(cube)
     assert rows.mean() < 12 / 2 and cols.mean() < 16 / 2
     assert not cube[-1].any() and not cube[:, -1].any()
+
+
+# -- threads ----------------------------------------------------------------------------------
+@pytest.fixture
+def exr_threads():
+    """Restore OpenEXR's global thread count after the test (it is process-wide)."""
+    before = OpenEXR.global_thread_count()
+    yield
+    OpenEXR.set_global_thread_count(before)
+
+
+def test_threads_do_not_change_the_bytes(tmp_path, exr_threads):
+    # A result large enough for many 16-line ZIP blocks, written and read on one
+    # thread (a count already set is kept) and then on every core.
+    result = make_result(240, 320, seed=3)
+    frame = make_frame(240, 320, seed=3)
+    OpenEXR.set_global_thread_count(1)
+    write_result(tmp_path / "one" / "r.exr", result)
+    write_passes(tmp_path / "one" / "0001.exr", frame)
+    one = read_frame(tmp_path / "one" / "0001.exr")
+    assert OpenEXR.global_thread_count() == 1
+    OpenEXR.set_global_thread_count(0)
+    cores = len(os.sched_getaffinity(0))
+    assert use_threads() == (cores if cores > 1 else 0)
+    write_result(tmp_path / "all" / "r.exr", result)
+    write_passes(tmp_path / "all" / "0001.exr", frame)
+    for name in ("r.exr", "0001.exr"):
+        assert (tmp_path / "all" / name).read_bytes() == (tmp_path / "one" / name).read_bytes()
+    np.testing.assert_array_equal(
+        read_result(tmp_path / "all" / "r.exr")["Composite"], result.composite
+    )
+    np.testing.assert_array_equal(read_frame(tmp_path / "all" / "0001.exr").lighting, one.lighting)
+
+
+def test_a_thread_count_already_set_is_kept(exr_threads):
+    OpenEXR.set_global_thread_count(3)
+    assert use_threads() == 3
+    assert OpenEXR.global_thread_count() == 3
