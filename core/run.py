@@ -57,6 +57,21 @@ Existing results
 
 Every file is written atomically (core.io.atomic), so a run killed at any
 instant leaves complete files only; temporaries of dead runs are removed.
+
+Writing in the background
+-------------------------
+With ``background=True`` (``cvsss post``: :func:`run_folder`) a frame's files —
+its results, then the checkpoints, then ``metrics.csv``, in the order an
+inline run writes them — are written by one writer thread while the next
+frame is read and processed: encoding a result EXR takes about as long as the
+frame's subsurface scattering at 1920×1080, and OpenEXR's encoder and the
+disk leave a core free for the next frame's single-threaded steps. At most one
+frame's files are in flight: :meth:`SequenceRun.step` waits for the previous
+frame's before it hands over its own, and raises their error (OutputError)
+there; :meth:`SequenceRun.finish` and :meth:`SequenceRun.close` wait for the
+last. A checkpoint is still written only after its frame's result, so a
+resumed run never skips a frame whose file is missing. The files are the same
+as an inline run's (timing figures aside).
 """
 
 from __future__ import annotations
@@ -67,7 +82,9 @@ import io
 import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -288,6 +305,11 @@ class SequenceRun:
         :func:`core.methods.make_processor`; e.g. tiled processors that run
         elsewhere (core.tiling). A processor with a ``start(frame)`` method is
         started for every method of a frame before the first result is awaited.
+    background : write each frame's files in a writer thread while the next frame
+        is processed (module doc, *Writing in the background*); call :meth:`finish`
+        or :meth:`close` at the end. The arrays of a processor's ``state()``
+        must then stay unchanged by later frames, as the project's processors'
+        do (a History is reprojected into new arrays every frame).
 
     Raises
     ------
@@ -309,6 +331,7 @@ class SequenceRun:
         write: bool = True,
         log: Log = None,
         processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
+        background: bool = False,
     ) -> None:
         if existing not in EXISTING:
             raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
@@ -319,6 +342,9 @@ class SequenceRun:
             raise ValueError("a run needs at least one frame")
         self.write = write
         self.log = log
+        self._background = background and write
+        self._writer: ThreadPoolExecutor | None = None
+        self._writing: Future | None = None  # the last stepped frame's files
         self._position = {n: i for i, n in enumerate(self.numbers)}
         self._signature = spec.signature()
         order = spec.order
@@ -401,7 +427,7 @@ class SequenceRun:
                     old.unlink()
             # A fresh checkpoint marks every result file written after it as this
             # run's (for resume) and fails early if the folder cannot be written.
-            self._save(run)
+            self._save(run)()
         if not any(run.resumed for run in self.runs.values()) or fresh:
             write_text(metrics, format_metrics([]))
 
@@ -457,11 +483,12 @@ class SequenceRun:
         run.rows = list(state.get("rows", []))
         run.resumed = True
 
-    def _save(self, run: _MethodRun) -> None:
+    def _save(self, run: _MethodRun) -> Callable[[], None]:
+        """Writes ``run``'s checkpoint as it is now (when called, even if later)."""
         state = {
             "method": run.name,
-            "frames_done": run.done,
-            "rows": run.rows,
+            "frames_done": list(run.done),
+            "rows": list(run.rows),
             "signature": self._signature,
         }
         arrays = dict(run.processor.state())
@@ -470,7 +497,36 @@ class SequenceRun:
             arrays["run_last_combined"] = last[1]
             arrays["run_last_light"] = np.array(last[2])
             arrays["run_last_y"] = last[3]
-        checkpoint.save(run.checkpoint, state, arrays)
+        return partial(checkpoint.save, run.checkpoint, state, arrays)
+
+    def _hand_over(self, files: list[Callable[[], None]]) -> None:
+        """Give a frame's files to the writer thread, once the previous frame's are written."""
+        self.wait()
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(1, thread_name_prefix="cvsss-write")
+        self._writing = self._writer.submit(_write_all, files)
+
+    def wait(self) -> None:
+        """Return once the files of every frame stepped so far are written.
+
+        Raises
+        ------
+        OutputError
+            (or any error of writing) A frame's files could not be written; its
+            checkpoint was not, so a resumed run processes that frame again.
+        """
+        pending, self._writing = self._writing, None
+        if pending is not None:
+            pending.result()
+
+    def close(self) -> None:
+        """:meth:`wait`, then stop the writer thread (also when waiting raises)."""
+        try:
+            self.wait()
+        finally:
+            if self._writer is not None:
+                self._writer.shutdown()
+                self._writer = None
 
     # -- stepping ----------------------------------------------------------------------------
     def pending(self, number: int) -> bool:
@@ -590,11 +646,15 @@ class SequenceRun:
                 if run.name != "reference":
                     early[run.name] = run.processor.process(frame)
             self.start(lookahead)
+        # The frame's files, in the order they are written: each at once, or all by
+        # the writer thread once the frame is done (background).
+        files: list[Callable[[], None]] = []
+        emit = files.append if self._background else (lambda write: write())
         for run in todo:
             if run.name == "reference" and ref is None:
                 run.done.append(number)  # not due on this frame: no result, no row
                 if self.write:
-                    self._save(run)
+                    emit(self._save(run))
                 continue
             if run.name == "reference":
                 result = ref
@@ -636,16 +696,19 @@ class SequenceRun:
                         row["flicker"] = _fmt(float(change.mean()) / level, 6)
             self._last[run.name] = (number, combined_y, light_mean, ours_y)
             if self.write:
-                write_result(
-                    run.folder / f"{number:04d}.exr",
-                    result,
-                    overwrite=True,
-                    metadata={"source": source or f"{number:04d}.exr"},
+                emit(
+                    partial(
+                        write_result,
+                        run.folder / f"{number:04d}.exr",
+                        result,
+                        overwrite=True,
+                        metadata={"source": source or f"{number:04d}.exr"},
+                    )
                 )
             run.rows.append(row)
             run.done.append(number)
             if self.write:
-                self._save(run)
+                emit(self._save(run))
             step.results[run.name] = result
             step.rows.append(row)
             if self.log:
@@ -658,7 +721,9 @@ class SequenceRun:
                     f"[elapsed {format_clock(elapsed)}, eta {format_clock(eta)}]"
                 )
         if self.write:
-            write_text(self.out / "metrics.csv", format_metrics(self.rows))
+            emit(partial(write_text, self.out / "metrics.csv", format_metrics(self.rows)))
+            if self._background:
+                self._hand_over(files)
         step.seconds = time.perf_counter() - began
         return step
 
@@ -668,12 +733,20 @@ class SequenceRun:
         return self.numbers[i - 1] if i > 0 else None
 
     def finish(self) -> list[dict]:
-        """Write the metrics when no frame needed work (all done before), and return the rows."""
+        """Wait for the files in flight (:meth:`close`), write the metrics when no frame
+        needed work (all done before), and return the rows."""
+        self.close()
         if self.write and not self._processed:
             write_text(self.out / "metrics.csv", format_metrics(self.rows))
             if self.log:
                 self.log(f"all {len(self.numbers)} frames were already done; nothing to do")
         return self.rows
+
+
+def _write_all(files: Sequence[Callable[[], None]]) -> None:
+    """Write a frame's files in order, stopping at the first that fails."""
+    for write in files:
+        write()
 
 
 def _feed_history(processors, frame: Frame) -> None:
@@ -865,7 +938,13 @@ def run_folder(
     source += f"mtime {head.st_mtime_ns})"
     spec = dataclasses.replace(spec, source=source)
     run = SequenceRun(
-        out, spec, [n for n, _ in frames], existing=existing, log=log, processors=processors
+        out,
+        spec,
+        [n for n, _ in frames],
+        existing=existing,
+        log=log,
+        processors=processors,
+        background=True,
     )
     first: list = []
 
@@ -890,14 +969,24 @@ def run_folder(
 
     todo = [(number, path) for number, path in frames if run.pending(number)]
     following = None
-    for k, (number, path) in enumerate(todo):
-        frame = following if following is not None else load(number, path)
-        following = load(*todo[k + 1]) if lookahead and k + 1 < len(todo) else None
-        gt = None
-        if ground_truth is not None:
-            gt_path = Path(ground_truth) / f"{number:04d}.exr"
-            if gt_path.exists():
-                with quiet_native_stderr():
-                    gt = read_combined(gt_path)
-        run.step(frame, source=path.name, ground_truth=gt, lookahead=following)
+    try:
+        for k, (number, path) in enumerate(todo):
+            frame = following if following is not None else load(number, path)
+            following = load(*todo[k + 1]) if lookahead and k + 1 < len(todo) else None
+            gt = None
+            if ground_truth is not None:
+                gt_path = Path(ground_truth) / f"{number:04d}.exr"
+                if gt_path.exists():
+                    with quiet_native_stderr():
+                        gt = read_combined(gt_path)
+            run.step(frame, source=path.name, ground_truth=gt, lookahead=following)
+    except BaseException:
+        # The frames before this one are kept: their files are finished first. If
+        # those fail too, this error still stops the run (theirs is printed).
+        try:
+            run.close()
+        except Exception as exc:
+            if warn:
+                warn(f"warning: {exc}")
+        raise
     return run.finish()

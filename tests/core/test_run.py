@@ -1,10 +1,17 @@
-"""core.run: warm-up frames and the open-ended FrameStream of Blender's own render."""
+"""core.run: warm-up frames, the open-ended FrameStream of Blender's own render, and
+writing a frame's files in the background."""
+
+import csv
 
 import numpy as np
 import pytest
 
+from cvsss.core import run as run_mod
+from cvsss.core.io import checkpoint
+from cvsss.core.io.errors import OutputError, PassError
+from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.params import SSSParams
-from cvsss.core.run import FrameStream, RunSpec, SequenceRun
+from cvsss.core.run import FrameStream, RunSpec, SequenceRun, run_folder
 from cvsss.core.synthetic import sequence
 
 PARAMS = SSSParams(target_variance=1e-6)
@@ -70,3 +77,117 @@ def test_warm_up_is_part_of_the_signature_only_when_used():
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="warmup_frames must be an integer >= 0"):
             RunSpec(("as",), warmup_frames=bad)
+
+
+# -- writing in the background ------------------------------------------------------------------
+TIMING = {"pass_ms", "frame_ms"}
+BACKGROUND_SPEC = RunSpec(("as_ccv", "as_ocv_t", "fixed", "reference"), PARAMS, reference_every=2)
+
+
+def _untimed(rows):
+    return [{k: v for k, v in row.items() if k not in TIMING} for row in rows]
+
+
+def _same_files(a, b):
+    """Results (pixels and untimed headers), checkpoints and metrics of two runs."""
+    names = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert names == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for name in names:
+        if name.suffix == ".exr":
+            x, y = read_result(a / name), read_result(b / name)
+            for layer in set(x) - {"header"}:
+                np.testing.assert_array_equal(x[layer], y[layer])
+            untimed = {f"cvsss.{k}" for k in ("pass_ms", "update_ms", "total_ms")}
+            assert {k: v for k, v in x["header"].items() if k not in untimed} == {
+                k: v for k, v in y["header"].items() if k not in untimed
+            }
+        elif name.suffix == ".npz":
+            (sx, ax), (sy, ay) = checkpoint.load(a / name), checkpoint.load(b / name)
+            assert sx["frames_done"] == sy["frames_done"]
+            assert _untimed(sx["rows"]) == _untimed(sy["rows"])
+            assert ax.keys() == ay.keys()
+            for k in ax:
+                np.testing.assert_array_equal(ax[k], ay[k])
+        else:
+            with open(a / name) as fx, open(b / name) as fy:
+                assert _untimed(csv.DictReader(fx)) == _untimed(csv.DictReader(fy))
+
+
+def test_background_writing_writes_the_files_of_an_inline_run(tmp_path):
+    frames = _frames(1, 5)
+    for folder, background in (("inline", False), ("background", True)):
+        run = SequenceRun(
+            tmp_path / folder, BACKGROUND_SPEC, [f.number for f in frames], background=background
+        )
+        for frame in frames:
+            run.step(frame)
+        run.finish()
+    _same_files(tmp_path / "inline", tmp_path / "background")
+
+
+def test_a_checkpoint_is_the_state_when_its_frame_finished(tmp_path):
+    # The writer thread saves frame n's checkpoint while frame n + 1 is processed:
+    # what it writes must not change with that frame (the histories of the online
+    # and constant CV and of temporal reuse, the metric rows, the frames done).
+    frames = _frames(1, 4)
+    numbers = [f.number for f in frames]
+    inline = SequenceRun(tmp_path / "inline", BACKGROUND_SPEC, numbers)
+    late = SequenceRun(tmp_path / "late", BACKGROUND_SPEC, numbers)
+    for frame in frames[:3]:
+        inline.step(frame)
+        late.step(frame)
+    saves = [late._save(run) for run in late.runs.values()]
+    late.step(frames[3])
+    for save in saves:
+        save()  # frame 3's checkpoints, written after frame 4
+    for run in late.runs.values():
+        assert checkpoint.load(run.checkpoint)[0]["frames_done"] == numbers[:3]
+    (tmp_path / "late" / "metrics.csv").write_bytes(
+        (tmp_path / "inline" / "metrics.csv").read_bytes()
+    )
+    for name in BACKGROUND_SPEC.order:
+        (tmp_path / "late" / name / "0004.exr").unlink(missing_ok=True)
+    _same_files(tmp_path / "inline", tmp_path / "late")
+
+
+def _passes(folder, frames):
+    for frame in frames:
+        write_passes(folder / f"{frame.number:04d}.exr", frame)
+    return folder
+
+
+def test_a_failed_write_stops_the_run_and_resume_redoes_its_frame(tmp_path, monkeypatch):
+    passes = _passes(tmp_path / "passes", _frames(1, 5))
+    spec = RunSpec(("as_ccv",), PARAMS)
+    run_folder(passes, tmp_path / "whole", spec)
+
+    real = run_mod.write_result
+
+    def full_disk(path, *args, **kwargs):
+        if path.name == "0003.exr":
+            raise OutputError(path, "No space left on device")
+        real(path, *args, **kwargs)
+
+    monkeypatch.setattr(run_mod, "write_result", full_disk)
+    out = tmp_path / "out"
+    with pytest.raises(OutputError, match="No space left"):
+        run_folder(passes, out, spec)
+    monkeypatch.undo()
+    # Frames 1 and 2 are kept with their checkpoint; frame 3 has neither.
+    assert sorted(p.name for p in (out / "as_ccv").glob("*.exr")) == ["0001.exr", "0002.exr"]
+    assert checkpoint.load(out / "as_ccv" / ".checkpoint.npz")[0]["frames_done"] == [1, 2]
+    run_folder(passes, out, spec, existing="resume")
+    _same_files(tmp_path / "whole", out)
+
+
+def test_a_bad_frame_keeps_the_frames_written_before_it(tmp_path):
+    passes = _passes(tmp_path / "passes", _frames(1, 4))
+    (passes / "0003.exr").write_bytes(b"not an exr")
+    out = tmp_path / "out"
+    with pytest.raises(PassError, match="0003.exr"):
+        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS))
+    # Frame 2 was being written when frame 3 failed to load: it is finished.
+    assert sorted(p.name for p in (out / "as_ccv").glob("*.exr")) == ["0001.exr", "0002.exr"]
+    for path in (out / "as_ccv").glob("*.exr"):
+        read_result(path)
+    assert checkpoint.load(out / "as_ccv" / ".checkpoint.npz")[0]["frames_done"] == [1, 2]
