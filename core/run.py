@@ -60,18 +60,19 @@ instant leaves complete files only; temporaries of dead runs are removed.
 
 Writing in the background
 -------------------------
-With ``background=True`` (``cvsss post``: :func:`run_folder`) a frame's files —
-its results, then the checkpoints, then ``metrics.csv``, in the order an
-inline run writes them — are written by one writer thread while the next
-frame is read and processed: encoding a result EXR takes about as long as the
-frame's subsurface scattering at 1920×1080, and OpenEXR's encoder and the
-disk leave a core free for the next frame's single-threaded steps. At most one
-frame's files are in flight: :meth:`SequenceRun.step` waits for the previous
-frame's before it hands over its own, and raises their error (OutputError)
-there; :meth:`SequenceRun.finish` and :meth:`SequenceRun.close` wait for the
-last. A checkpoint is still written only after its frame's result, so a
-resumed run never skips a frame whose file is missing. The files are the same
-as an inline run's (timing figures aside).
+Given ``submit`` (``cvsss post`` passes a one-thread executor's: the core
+starts no threads itself), a frame's files — its results, then the
+checkpoints, then ``metrics.csv``, in the order an inline run writes them —
+are handed over as one job and written while the next frame is read:
+encoding a result EXR takes about as long as the frame's subsurface
+scattering at 1920×1080, and reading and checking the next frame's passes
+leaves a core free. :meth:`SequenceRun.step` waits for the previous frame's
+files before any method runs, so the writing never slows the timed steps
+(``pass_ms``, ``frame_ms``), and raises their error (OutputError) there;
+:meth:`SequenceRun.finish` and :meth:`SequenceRun.wait` wait for the last. A
+checkpoint is still written only after its frame's result, so a resumed run
+never skips a frame whose file is missing. The files are the same as an
+inline run's (timing figures aside).
 """
 
 from __future__ import annotations
@@ -82,10 +83,10 @@ import io
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -305,11 +306,15 @@ class SequenceRun:
         :func:`core.methods.make_processor`; e.g. tiled processors that run
         elsewhere (core.tiling). A processor with a ``start(frame)`` method is
         started for every method of a frame before the first result is awaited.
-    background : write each frame's files in a writer thread while the next frame
-        is processed (module doc, *Writing in the background*); call :meth:`finish`
-        or :meth:`close` at the end. The arrays of a processor's ``state()``
-        must then stay unchanged by later frames, as the project's processors'
-        do (a History is reprojected into new arrays every frame).
+    submit : callable, optional
+        ``submit(job)`` runs the no-argument callable ``job`` elsewhere and returns
+        an object whose ``result()`` waits for it and raises its error (a
+        one-thread ``concurrent.futures`` executor's ``submit``): each frame's
+        files are written through it while the next frame is processed (module
+        doc, *Writing in the background*); call :meth:`finish` or :meth:`wait`
+        at the end. The arrays of a processor's ``state()`` must then stay
+        unchanged by later frames, as the project's processors' do (a History
+        is reprojected into new arrays every frame). None: written inline.
 
     Raises
     ------
@@ -331,7 +336,7 @@ class SequenceRun:
         write: bool = True,
         log: Log = None,
         processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
-        background: bool = False,
+        submit: Callable[[Callable[[], None]], Any] | None = None,
     ) -> None:
         if existing not in EXISTING:
             raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
@@ -342,9 +347,8 @@ class SequenceRun:
             raise ValueError("a run needs at least one frame")
         self.write = write
         self.log = log
-        self._background = background and write
-        self._writer: ThreadPoolExecutor | None = None
-        self._writing: Future | None = None  # the last stepped frame's files
+        self._submit = submit if write else None
+        self._writing: Any = None  # the last stepped frame's files (submit's handle)
         self._position = {n: i for i, n in enumerate(self.numbers)}
         self._signature = spec.signature()
         order = spec.order
@@ -500,11 +504,9 @@ class SequenceRun:
         return partial(checkpoint.save, run.checkpoint, state, arrays)
 
     def _hand_over(self, files: list[Callable[[], None]]) -> None:
-        """Give a frame's files to the writer thread, once the previous frame's are written."""
+        """Submit a frame's files (the previous frame's are written: :meth:`step`)."""
         self.wait()
-        if self._writer is None:
-            self._writer = ThreadPoolExecutor(1, thread_name_prefix="cvsss-write")
-        self._writing = self._writer.submit(_write_all, files)
+        self._writing = self._submit(partial(_write_all, files))
 
     def wait(self) -> None:
         """Return once the files of every frame stepped so far are written.
@@ -518,15 +520,6 @@ class SequenceRun:
         pending, self._writing = self._writing, None
         if pending is not None:
             pending.result()
-
-    def close(self) -> None:
-        """:meth:`wait`, then stop the writer thread (also when waiting raises)."""
-        try:
-            self.wait()
-        finally:
-            if self._writer is not None:
-                self._writer.shutdown()
-                self._writer = None
 
     # -- stepping ----------------------------------------------------------------------------
     def pending(self, number: int) -> bool:
@@ -635,6 +628,10 @@ class SequenceRun:
         light_mean = None
         ref = None
         due = self.reference_due(number)
+        # The previous frame's files (``submit``) were written while this frame was
+        # read; they are finished before any method runs, so that their encoding
+        # does not slow the sampling steps timed below (pass_ms, frame_ms).
+        self.wait()
         self.start(frame)
         if due:
             # The reference keeps no history, so recomputing it for a method that
@@ -646,10 +643,10 @@ class SequenceRun:
                 if run.name != "reference":
                     early[run.name] = run.processor.process(frame)
             self.start(lookahead)
-        # The frame's files, in the order they are written: each at once, or all by
-        # the writer thread once the frame is done (background).
+        # The frame's files, in the order they are written: each at once, or all
+        # through ``submit`` once the frame is done.
         files: list[Callable[[], None]] = []
-        emit = files.append if self._background else (lambda write: write())
+        emit = files.append if self._submit else (lambda write: write())
         for run in todo:
             if run.name == "reference" and ref is None:
                 run.done.append(number)  # not due on this frame: no result, no row
@@ -722,7 +719,7 @@ class SequenceRun:
                 )
         if self.write:
             emit(partial(write_text, self.out / "metrics.csv", format_metrics(self.rows)))
-            if self._background:
+            if self._submit:
                 self._hand_over(files)
         step.seconds = time.perf_counter() - began
         return step
@@ -733,9 +730,9 @@ class SequenceRun:
         return self.numbers[i - 1] if i > 0 else None
 
     def finish(self) -> list[dict]:
-        """Wait for the files in flight (:meth:`close`), write the metrics when no frame
+        """Wait for the files in flight (:meth:`wait`), write the metrics when no frame
         needed work (all done before), and return the rows."""
-        self.close()
+        self.wait()
         if self.write and not self._processed:
             write_text(self.out / "metrics.csv", format_metrics(self.rows))
             if self.log:
@@ -889,6 +886,7 @@ def run_folder(
     ground_truth: str | os.PathLike | None = None,
     processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
     lookahead: bool = False,
+    submit: Callable[[Callable[[], None]], Any] | None = None,
 ) -> list[dict]:
     """Post-process every frame of a folder of pass EXRs (the ``cvsss post`` job).
 
@@ -907,6 +905,8 @@ def run_folder(
     lookahead : read each next frame early and start it before the results of the
         current one are written (:meth:`SequenceRun.step`; for processors that run
         elsewhere: their work then overlaps the writing)
+    submit : as :class:`SequenceRun`: write each frame's files while the next is
+        read and processed (``cvsss post`` does)
 
     Returns
     -------
@@ -944,7 +944,7 @@ def run_folder(
         existing=existing,
         log=log,
         processors=processors,
-        background=True,
+        submit=submit,
     )
     first: list = []
 
@@ -984,7 +984,7 @@ def run_folder(
         # The frames before this one are kept: their files are finished first. If
         # those fail too, this error still stops the run (theirs is printed).
         try:
-            run.close()
+            run.wait()
         except Exception as exc:
             if warn:
                 warn(f"warning: {exc}")

@@ -22,8 +22,11 @@ print one ``error:`` line and exit with status 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import sys
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 if __package__ in (None, ""):
@@ -410,6 +413,15 @@ def post_params(args: argparse.Namespace, methods: list[str]) -> SSSParams:
     return params
 
 
+@contextlib.contextmanager
+def background_writer() -> Iterator:
+    """``submit`` of a one-thread executor, for core.run's ``submit`` (the core starts
+    no threads): each frame's files are written while the next frame is read. On the
+    way out it waits for the files still being written."""
+    with ThreadPoolExecutor(1, thread_name_prefix="cvsss-write") as pool:
+        yield pool.submit
+
+
 def _post(args: argparse.Namespace) -> int:
     from ...core.run import RunSpec, run_folder
 
@@ -437,24 +449,26 @@ def _post(args: argparse.Namespace) -> int:
         "warn": lambda text: print(text, file=sys.stderr),
         "ground_truth": ground_truth,
     }
-    if _distributed(args):
-        from ..farm.cluster import FarmError
-        from ..farm.post import post_distributed
+    with background_writer() as submit:
+        if _distributed(args):
+            from ..farm.cluster import FarmError
+            from ..farm.post import post_distributed
 
-        try:
-            post_distributed(
-                args.passes,
-                args.out,
-                spec,
-                workers=args.workers,
-                scheduler=args.scheduler,
-                tile=args.tile,
-                **common,
-            )
-        except FarmError as exc:
-            raise UserError(str(exc)) from None
-        return 0
-    run_folder(args.passes, args.out, spec, **common)
+            try:
+                post_distributed(
+                    args.passes,
+                    args.out,
+                    spec,
+                    workers=args.workers,
+                    scheduler=args.scheduler,
+                    tile=args.tile,
+                    submit=submit,
+                    **common,
+                )
+            except FarmError as exc:
+                raise UserError(str(exc)) from None
+            return 0
+        run_folder(args.passes, args.out, spec, submit=submit, **common)
     return 0
 
 

@@ -60,7 +60,7 @@ def post_distributed(
     scheduler : address of a running Dask scheduler (``tcp://HOST:PORT``)
     tile : tile side in pixels
     log : progress printer
-    kwargs : passed to run_folder (existing, allow_gaps, warn, ground_truth)
+    kwargs : passed to run_folder (existing, allow_gaps, warn, ground_truth, submit)
     """
     warn = kwargs.get("warn")
     with open_cluster(workers, scheduler, log=log) as executor:

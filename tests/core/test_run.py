@@ -2,6 +2,7 @@
 writing a frame's files in the background."""
 
 import csv
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from cvsss.core import run as run_mod
 from cvsss.core.io import checkpoint
 from cvsss.core.io.errors import OutputError, PassError
 from cvsss.core.io.exr import read_result, write_passes
+from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.run import FrameStream, RunSpec, SequenceRun, run_folder
 from cvsss.core.synthetic import sequence
@@ -115,13 +117,17 @@ def _same_files(a, b):
 
 def test_background_writing_writes_the_files_of_an_inline_run(tmp_path):
     frames = _frames(1, 5)
-    for folder, background in (("inline", False), ("background", True)):
-        run = SequenceRun(
-            tmp_path / folder, BACKGROUND_SPEC, [f.number for f in frames], background=background
+    numbers = [f.number for f in frames]
+    inline = SequenceRun(tmp_path / "inline", BACKGROUND_SPEC, numbers)
+    with ThreadPoolExecutor(1) as pool:
+        background = SequenceRun(
+            tmp_path / "background", BACKGROUND_SPEC, numbers, submit=pool.submit
         )
         for frame in frames:
-            run.step(frame)
-        run.finish()
+            inline.step(frame)
+            background.step(frame)
+        inline.finish()
+        background.finish()
     _same_files(tmp_path / "inline", tmp_path / "background")
 
 
@@ -170,8 +176,8 @@ def test_a_failed_write_stops_the_run_and_resume_redoes_its_frame(tmp_path, monk
 
     monkeypatch.setattr(run_mod, "write_result", full_disk)
     out = tmp_path / "out"
-    with pytest.raises(OutputError, match="No space left"):
-        run_folder(passes, out, spec)
+    with ThreadPoolExecutor(1) as pool, pytest.raises(OutputError, match="No space left"):
+        run_folder(passes, out, spec, submit=pool.submit)
     monkeypatch.undo()
     # Frames 1 and 2 are kept with their checkpoint; frame 3 has neither.
     assert sorted(p.name for p in (out / "as_ccv").glob("*.exr")) == ["0001.exr", "0002.exr"]
@@ -184,10 +190,54 @@ def test_a_bad_frame_keeps_the_frames_written_before_it(tmp_path):
     passes = _passes(tmp_path / "passes", _frames(1, 4))
     (passes / "0003.exr").write_bytes(b"not an exr")
     out = tmp_path / "out"
-    with pytest.raises(PassError, match="0003.exr"):
-        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS))
+    with ThreadPoolExecutor(1) as pool, pytest.raises(PassError, match="0003.exr"):
+        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS), submit=pool.submit)
     # Frame 2 was being written when frame 3 failed to load: it is finished.
     assert sorted(p.name for p in (out / "as_ccv").glob("*.exr")) == ["0001.exr", "0002.exr"]
     for path in (out / "as_ccv").glob("*.exr"):
         read_result(path)
     assert checkpoint.load(out / "as_ccv" / ".checkpoint.npz")[0]["frames_done"] == [1, 2]
+
+
+class _Deferred:
+    """A ``submit`` whose job runs only when its result is asked for."""
+
+    def __init__(self):
+        self.jobs = []
+
+    def __call__(self, job):
+        self.jobs.append(job)
+        return self
+
+    def result(self):
+        while self.jobs:
+            self.jobs.pop(0)()
+
+
+def test_a_frames_files_are_finished_before_the_next_frame_is_processed(tmp_path):
+    # Their encoding must not slow the next frame's timed sampling steps.
+    frames = _frames(1, 3)
+    out = tmp_path / "out"
+    seen = []
+
+    def processors(name, params, options):
+        processor = make_processor(name, params, options)
+        process = processor.process
+
+        def checked(frame):
+            before = [p.name for p in sorted((out / name).glob("*.exr"))]
+            seen.append((name, frame.number, before))
+            return process(frame)
+
+        processor.process = checked
+        return processor
+
+    submit = _Deferred()
+    run = SequenceRun(out, SPEC, [f.number for f in frames], processors=processors, submit=submit)
+    for frame in frames:
+        run.step(frame)
+        assert not (out / "as_ocv" / f"{frame.number:04d}.exr").exists()  # not yet written
+    run.finish()
+    want = [[f"{n:04d}.exr" for n in range(1, k)] for k in (1, 2, 3)]
+    assert seen == [("as_ocv", k, w) for k, w in zip((1, 2, 3), want, strict=True)]
+    assert (out / "as_ocv" / "0003.exr").exists()
