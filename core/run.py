@@ -310,8 +310,8 @@ class SequenceRun:
         ``submit(job)`` runs the no-argument callable ``job`` elsewhere and returns
         an object whose ``result()`` waits for it and raises its error (a
         one-thread ``concurrent.futures`` executor's ``submit``): each frame's
-        files are written through it while the next frame is processed (module
-        doc, *Writing in the background*); call :meth:`finish` or :meth:`wait`
+        files are written through it while the next frame is read (module doc,
+        *Writing in the background*); call :meth:`finish` or :meth:`wait`
         at the end. The arrays of a processor's ``state()`` must then stay
         unchanged by later frames, as the project's processors' do (a History
         is reprojected into new arrays every frame). None: written inline.
@@ -517,9 +517,16 @@ class SequenceRun:
             (or any error of writing) A frame's files could not be written; its
             checkpoint was not, so a resumed run processes that frame again.
         """
-        pending, self._writing = self._writing, None
-        if pending is not None:
-            pending.result()
+        if self._writing is None:
+            return
+        try:
+            self._writing.result()
+        except Exception:
+            self._writing = None  # its error is raised once
+            raise
+        # Interrupted (KeyboardInterrupt), the files are still pending: the next
+        # call waits for them again.
+        self._writing = None
 
     # -- stepping ----------------------------------------------------------------------------
     def pending(self, number: int) -> bool:
@@ -906,7 +913,7 @@ def run_folder(
         current one are written (:meth:`SequenceRun.step`; for processors that run
         elsewhere: their work then overlaps the writing)
     submit : as :class:`SequenceRun`: write each frame's files while the next is
-        read and processed (``cvsss post`` does)
+        read (``cvsss post`` does)
 
     Returns
     -------

@@ -241,3 +241,27 @@ def test_a_frames_files_are_finished_before_the_next_frame_is_processed(tmp_path
     want = [[f"{n:04d}.exr" for n in range(1, k)] for k in (1, 2, 3)]
     assert seen == [("as_ocv", k, w) for k, w in zip((1, 2, 3), want, strict=True)]
     assert (out / "as_ocv" / "0003.exr").exists()
+
+
+class _InterruptedOnce(_Deferred):
+    """A Ctrl-C lands while the first wait for a frame's files is under way."""
+
+    interrupted = False
+
+    def result(self):
+        if not self.interrupted:
+            self.interrupted = True
+            raise KeyboardInterrupt
+        super().result()
+
+
+def test_an_interrupted_wait_still_finishes_the_files(tmp_path):
+    frames = _frames(1, 2)
+    out = tmp_path / "out"
+    run = SequenceRun(out, SPEC, [1, 2], submit=_InterruptedOnce())
+    run.step(frames[0])
+    with pytest.raises(KeyboardInterrupt):
+        run.step(frames[1])  # waits for frame 1's files first
+    run.wait()  # as run_folder does on the way out
+    assert (out / "as_ocv" / "0001.exr").is_file()
+    assert checkpoint.load(out / "as_ocv" / ".checkpoint.npz")[0]["frames_done"] == [1]
