@@ -450,6 +450,7 @@ def _post(args: argparse.Namespace) -> int:
         "ground_truth": ground_truth,
     }
     with background_writer() as submit:
+        common["submit"] = submit
         if _distributed(args):
             from ..farm.cluster import FarmError
             from ..farm.post import post_distributed
@@ -462,13 +463,12 @@ def _post(args: argparse.Namespace) -> int:
                     workers=args.workers,
                     scheduler=args.scheduler,
                     tile=args.tile,
-                    submit=submit,
                     **common,
                 )
             except FarmError as exc:
                 raise UserError(str(exc)) from None
             return 0
-        run_folder(args.passes, args.out, spec, submit=submit, **common)
+        run_folder(args.passes, args.out, spec, **common)
     return 0
 
 
