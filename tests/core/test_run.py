@@ -190,9 +190,11 @@ def test_a_bad_frame_keeps_the_frames_written_before_it(tmp_path):
     passes = _passes(tmp_path / "passes", _frames(1, 4))
     (passes / "0003.exr").write_bytes(b"not an exr")
     out = tmp_path / "out"
-    with ThreadPoolExecutor(1) as pool, pytest.raises(PassError, match="0003.exr"):
-        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS), submit=pool.submit)
-    # Frame 2 was being written when frame 3 failed to load: it is finished.
+    # Frame 2's files are written only when waited for (_Deferred): run_folder
+    # must finish them on its way out of the error.
+    with pytest.raises(PassError, match="0003.exr"):
+        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS), submit=_Deferred())
+    # Frame 2 was pending when frame 3 failed to load: it is finished.
     assert sorted(p.name for p in (out / "as_ccv").glob("*.exr")) == ["0001.exr", "0002.exr"]
     for path in (out / "as_ccv").glob("*.exr"):
         read_result(path)
