@@ -134,7 +134,7 @@ def _finite_or_zero(a: np.ndarray) -> tuple[int, np.ndarray]:
 def _clipped_index(a: np.ndarray, top: int) -> np.ndarray:
     """Finite float64 ``a`` rounded to the nearest integer in [0, top], as int32."""
     r = np.rint(a)
-    # np.clip's own bits, without its overhead (a third of this at 1280x720).
+    # np.clip's bits: at 1280x720 this took 1.2 ms, with np.clip 4.6 ms (one-off timeit).
     np.maximum(r, 0.0, out=r)
     np.minimum(r, float(top), out=r)
     return r.astype(np.int32)

@@ -181,9 +181,9 @@ def use_threads() -> int:
     """Let OpenEXR (de)compress a file's blocks on every core this process may use.
 
     The bindings' library starts with no worker threads, so a ZIP-compressed
-    file was written and read on one core: at 1280×720 a result EXR took 370 ms
-    to write and 100 ms to read, against 210 and 56 ms with 2 threads on this
-    project's 2-core host (one-off timing). Each block is compressed on its own,
+    file was written and read on one core: at 1280×720 a result EXR took about
+    370 ms to write and 105–120 ms to read, against 210 and 56 ms with 2 threads
+    on this project's 2-core host (one-off timing). Each block is compressed on its own,
     so the file's bytes are the same whatever the count. A count someone already
     set (a host application, a test) is left as it is.
 
