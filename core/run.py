@@ -503,11 +503,6 @@ class SequenceRun:
             arrays["run_last_y"] = last[3]
         return partial(checkpoint.save, run.checkpoint, state, arrays)
 
-    def _hand_over(self, files: list[Callable[[], None]]) -> None:
-        """Submit a frame's files (the previous frame's are written: :meth:`step`)."""
-        self.wait()
-        self._writing = self._submit(partial(_write_all, files))
-
     def wait(self) -> None:
         """Return once the files of every frame stepped so far are written.
 
@@ -726,8 +721,8 @@ class SequenceRun:
                 )
         if self.write:
             emit(partial(write_text, self.out / "metrics.csv", format_metrics(self.rows)))
-            if self._submit:
-                self._hand_over(files)
+            if self._submit:  # the previous frame's were finished before processing
+                self._writing = self._submit(partial(_write_all, files))
         step.seconds = time.perf_counter() - began
         return step
 
