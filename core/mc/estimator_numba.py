@@ -1284,7 +1284,6 @@ def spvg_update(mu, var, mbar, valid, tracked, counts, params):
     p = params
     shape = np.broadcast_shapes(*(np.shape(x) for x in (mu, var, mbar, valid, tracked, counts)))
     out = np.empty((3, *shape))
-    eta = p.eta
     _update_pass(
         _flat(mu, shape, np.float64),
         _flat(var, shape, np.float64),
@@ -1292,14 +1291,23 @@ def spvg_update(mu, var, mbar, valid, tracked, counts, params):
         _flat(valid, shape, np.bool_),
         _flat(tracked, shape, np.float64),
         _flat(counts, shape, np.float64),
-        1.0 - eta,
-        eta * (1.0 - eta),
-        eta,
-        float(p.target_variance),
-        float(p.initial_count),
+        *_spvg_constants(p),
         out.reshape(3, -1),
     )
     return out[0], out[1], out[2], np.asarray(counts) > 0
+
+
+def _spvg_constants(params) -> tuple[float, float, float, float, float]:
+    """(keep, spread, η, σ0², n_init) of Eq. 5–7 as :func:`_spvg_step` takes them:
+    keep = 1 − η, spread = η(1 − η)."""
+    eta = params.eta
+    return (
+        1.0 - eta,
+        eta * (1.0 - eta),
+        eta,
+        float(params.target_variance),
+        float(params.initial_count),
+    )
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -1358,7 +1366,6 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
     h, w = mu.shape
     out = np.empty(index.shape[0])
     new_valid = np.zeros(h * w, np.bool_)
-    eta = params.eta
     _history_pass(
         mu.reshape(-1),
         var.reshape(-1),
@@ -1372,11 +1379,7 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
         np.ascontiguousarray(counts),
         bool(residual),
         float(params.exposure),
-        1.0 - eta,
-        eta * (1.0 - eta),
-        eta,
-        float(params.target_variance),
-        float(params.initial_count),
+        *_spvg_constants(params),
         float(TRACK_LIMIT),
         out,
         new_valid,
