@@ -33,13 +33,15 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .mc.backend import compiled as _compiled
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from .frame import Frame
     from .profiles.base import Profile, Region
 
@@ -330,12 +332,32 @@ class Geometry:
     def gamma_image(self, backend: str = "numpy") -> np.ndarray:
         """(H, W, 3) float32, read-only: γ at the SSS pixels, 0 elsewhere (``to_image``;
         every backend gives the same image, made once)."""
-        image = self.__dict__.get("_gamma_image")
-        if image is None:
-            image = self.__dict__["_gamma_image"] = _read_only(
-                self.to_image(self.gamma, backend=backend)
-            )
-        return image
+        return self.memo(
+            "gamma_image", lambda: _read_only(self.to_image(self.gamma, backend=backend))
+        )
+
+    @property
+    def memos(self) -> dict[str, Any]:
+        """Values made once per Geometry from its own arrays (see :meth:`memo`), by name.
+
+        One dict, shared by the Geometries a GeometryCache hands on for the frames
+        that reuse this one: a consumer may take a value out while it writes into it
+        (``memos.pop``) and put it back when done, so that no two calls share it.
+        """
+        return self.__dict__.setdefault("_memos", {})
+
+    def memo(self, name: str, make: Callable[[], Any]) -> Any:
+        """``make()``, made on first use and kept under ``name`` (:attr:`memos`).
+
+        For values of the Geometry's own arrays (and of the passes it was prepared
+        from: depth, material, objects, which a GeometryCache hit has bit for bit),
+        never of the lighting. ``make`` must give the same value whenever called.
+        """
+        memos = self.memos
+        value = memos.get(name)
+        if value is None:
+            value = memos[name] = make()
+        return value
 
     def to_image(
         self, values: np.ndarray, fill: float = 0.0, dtype=np.float32, backend: str = "numpy"
@@ -535,9 +557,9 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return a
 
 
-#: Values a Geometry computes once from its own arrays (cached properties and the
-#: γ image), handed on by GeometryCache hits.
-_CARRIED = ("gamma_sum", "gamma_max", "mask_image", "_gamma_image")
+#: Values a Geometry computes once from its own arrays (cached properties and
+#: :attr:`Geometry.memos`), handed on by GeometryCache hits.
+_CARRIED = ("gamma_sum", "gamma_max", "mask_image", "_memos")
 
 
 def _snapshot(a: np.ndarray | None) -> np.ndarray | None:
@@ -638,9 +660,11 @@ class GeometryCache:
 
 def _entry_bytes(entry: tuple) -> int:
     """Bytes of the arrays a GeometryCache entry holds (its copies of the passes and
-    its Geometry's arrays, surface and images)."""
+    its Geometry's arrays, surface, images and memos)."""
     geom = entry[3]
     arrays = [*entry[2], *vars(geom).values()]
     if geom.surface is not None:
         arrays += [geom.surface.area, geom.surface.normal]
+    for value in geom.memos.values():
+        arrays += value if isinstance(value, tuple) else [value]
     return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))

@@ -391,21 +391,31 @@ def estimate_distant(
     # The disk kernel lives on the depth-buffer surface (prepare(surface_distance=True)),
     # which a frame without SSS pixels does not have.
     disk = disk and geom.surface is not None
-    distant = geom.gamma * geom.at(lighting).astype(np.float64)
     counts = np.asarray(counts, dtype=np.int64)
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
-    total = int(counts[active].sum())
+    # Every SSS pixel takes samples in most frames: no gather of the counts then.
+    every = active.size == geom.size
+    act_counts = counts if every else counts[active]
+    total = int(act_counts.sum())
+    compiled = (
+        total > 0
+        and type(profile) is BurleyProfile  # a subclass may sample differently
+        and backends.compiled(backend)
+    )
+    # The kernel reads B as float32 (its texels): it starts the rows where that is B.
+    start = compiled and every and lighting.dtype == np.float32
+    if start:
+        distant = np.empty((geom.size, 3))  # the kernel writes every row (below)
+    else:
+        distant = geom.gamma * geom.at(lighting).astype(np.float64)
     if total == 0:
         return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
-    act_counts = counts[active]
     counted = total if geom.core is None else int(act_counts[geom.core[active]].sum())
-    if (
-        type(profile) is BurleyProfile  # a subclass may sample differently
-        and backends.compiled(backend)
-    ):
+    if compiled:
         from .estimator_numba import run_kernel
 
-        # The kernel adds each pixel's mean to ``distant`` itself.
+        # The kernel adds each pixel's mean to ``distant`` itself; visiting every
+        # pixel, it also starts each row at γ·B(p) (the same float64 operations).
         var_sums, fallback = run_kernel(
             geom,
             profile,
@@ -421,6 +431,7 @@ def estimate_distant(
             hidden_light,
             contact,
             distant=distant,
+            start=start,
         )
     else:
         pix = active_pixels(geom, profile, counts, active, frame, seed)

@@ -5,11 +5,14 @@ the current one and times both on the bench's flash frame (``core.synthetic``)
 with the default sample kernel (``cycles``) and the sample counts of a steady
 ``as_ccv`` frame (frame 3, history from frames 1–2), calls interleaved, so a
 slow spell of a shared machine hits both. Prints ns per sample of the whole
-``run_kernel`` call (minimum, 25th percentile and median of the calls) and
-whether both give the same bits: each pixel's mean (a revision whose kernel
-returned sums has them divided by the counts after the call, as
-``estimate_distant`` then did, inside the timing), the luminance sums and the
-fall-back count. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
+``run_kernel`` call with the start of the estimate, γ·B (minimum, 25th
+percentile and median of the calls), and whether both give the same bits:
+each pixel's γ·B plus its mean (a revision whose kernel returned sums has
+them divided by the counts after the call, as ``estimate_distant`` then did,
+inside the timing; a kernel that takes ``start`` sets the rows itself), the
+luminance sums and the fall-back count. All calls share one Geometry, as the
+frames of a still scene do: a kernel that keeps its texels in the Geometry's
+memos relights them from the second call on. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
 or later. Run from the repo root:
 
     .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N]
@@ -40,7 +43,7 @@ def load_revision(rev: str, folder: Path):
         capture_output=True,
         text=True,
     ).stdout
-    text = text.replace("from ..sampling", "from cvsss.core.sampling")
+    text = text.replace("from ..", "from cvsss.core.")
     path = folder / f"kernel_{rev.replace('/', '_')}.py"
     path.write_text(text.replace("cache=True", "cache=False"))
     spec = importlib.util.spec_from_file_location(path.stem, path)
@@ -65,9 +68,19 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     args = (frame.lighting, frame.depth, frame.number, params.seed, params.depth_slope)
     tail = (False, True, params.hidden_light, params.contact)
 
+    every = active.size == geom.size
+
     def run(module):
-        distant = np.zeros((geom.size, 3))
-        if "distant" in inspect.signature(module.run_kernel).parameters:
+        keywords = inspect.signature(module.run_kernel).parameters
+        if "start" in keywords and every:  # the kernel starts the rows at γ·B itself
+            distant = np.empty((geom.size, 3))
+            var, fallback = module.run_kernel(
+                geom, profile, counts, active, *args, *tail, distant=distant, start=True
+            )
+            return distant, var, fallback
+        # γ·B first, as estimate_distant does for such a kernel.
+        distant = geom.gamma * geom.at(frame.lighting).astype(np.float64)
+        if "distant" in keywords:
             var, fallback = module.run_kernel(
                 geom, profile, counts, active, *args, *tail, distant=distant
             )

@@ -683,3 +683,44 @@ def test_kernel_results_do_not_depend_on_the_visiting_order(monkeypatch):
     assert np.count_nonzero(np.any(tiled[0][active] != 0.0, axis=1)) > active.size // 2
     assert np.array_equal(tiled[1], reverse[1])
     assert tiled[2] == reverse[2]
+
+
+def test_kernel_started_rows_equal_numpys_start_plus_the_means():
+    """With ``start`` the kernel sets each row to γ·B(p) plus the pixel's mean itself:
+    from rows of NaN it gives the bits of NumPy's γ·B with the means added; a Geometry
+    reused with other lighting (its texels relit in place) gives the bits of a fresh one."""
+    from cvsss.core.geometry import GeometryCache
+    from cvsss.core.mc import estimator_numba as en
+
+    frames = [scene_frame("flash", n, 48, 32) for n in (2, 3)]
+    assert not np.array_equal(frames[0].lighting, frames[1].lighting)
+    profile = frame_profile(frames[0], SSSParams())
+    cache = GeometryCache()
+    size = prepare(frames[0], profile, surface_distance=True).size
+    counts = np.random.default_rng(5).integers(1, 40, size)
+    active = np.arange(size)
+
+    def run(g, frame, start, variance):
+        args = (frame.lighting, frame.depth, frame.number, 0, 2.0, variance, True, 0.75, 0.5)
+        if start:
+            distant = np.full((g.size, 3), np.nan)
+        else:
+            distant = g.gamma * g.at(frame.lighting).astype(np.float64)
+        var, fb = en.run_kernel(g, profile, counts, active, *args, distant=distant, start=start)
+        return distant, var, fb
+
+    for frame in frames:  # the second frame relights the first one's texels
+        # The cache hands on the first frame's Geometry (with this frame's direct light).
+        geom = cache.prepare(frame, profile, surface_distance=True)
+        for variance in (False, True):
+            fresh = prepare(frame, profile, surface_distance=True)
+            want = run(fresh, frame, False, variance)
+            got = run(geom, frame, True, variance)
+            assert np.isfinite(want[0]).all()
+            assert np.array_equal(got[0], want[0])
+            assert got[2] == want[2]
+            if variance:
+                assert np.array_equal(got[1], want[1])
+            else:
+                assert got[1] is None and want[1] is None
+    assert cache.hits == 1 and en._TEXELS in geom.memos
