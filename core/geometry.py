@@ -337,6 +337,14 @@ class Geometry:
         )
 
     @property
+    def reused(self) -> bool:
+        """This Geometry was handed on by a GeometryCache hit: a still scene's, reused at
+        least once, and likely again. Work that depends on the lighting too, but whose
+        buffers could serve the next frame, is kept in :attr:`memos` for such Geometries
+        only: a moving scene's Geometry would hold it for nothing."""
+        return self.__dict__.get("_reused", False)
+
+    @property
     def memos(self) -> dict[str, Any]:
         """Values made once per Geometry from its own arrays (see :meth:`memo`), by name.
 
@@ -645,6 +653,7 @@ class GeometryCache:
             for name in _CARRIED:
                 if name in geom.__dict__:
                     fresh.__dict__[name] = geom.__dict__[name]
+            fresh.__dict__["_reused"] = True
             return fresh
         self._entries.pop(crop, None)  # stale: free it before preparing anew
         geom = prepare(frame, profile, **options)

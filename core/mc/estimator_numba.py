@@ -815,7 +815,9 @@ def _relight(light, out):
 #: a Geometry reused for the next frame of a still scene (core.geometry.GeometryCache)
 #: rewrites only the lighting of its last call's texels, in place (at 1920×1080 a fresh
 #: 66 MB texel array took 16.4 ms per frame, inside the frame). With them, the order
-#: that visits all of the Geometry's pixels.
+#: that visits all of the Geometry's pixels. Kept for reused Geometries only
+#: (Geometry.reused): the texels are 32 bytes per pixel of the frame (118 MB at
+#: 2560×1440), held between frames.
 _TEXELS, _ORDER = "numba_texels", "numba_tile_order"
 
 #: Largest integer float32 holds exactly: the texels' slot-and-object keys stay below it.
@@ -954,7 +956,7 @@ def run_kernel(
     else:
         texel, inv_k = held
         _relight(light, texel)
-    if active.size == geom.size:  # every SSS pixel (as in most frames): the same order
+    if active.size == geom.size and geom.reused:  # every SSS pixel, as in most frames
         order = geom.memo(_ORDER, lambda: tile_order(geom.x, geom.y, full_w))
     else:
         order = tile_order(geom.x, geom.y, full_w, active)
@@ -1014,7 +1016,8 @@ def run_kernel(
         distant,
         bool(start),
     )
-    geom.memos[_TEXELS] = (texel, inv_k)
+    if geom.reused:
+        geom.memos[_TEXELS] = (texel, inv_k)
     return (var if variance else None), int(fb.sum())
 
 

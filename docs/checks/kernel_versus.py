@@ -10,9 +10,10 @@ percentile and median of the calls), and whether both give the same bits:
 each pixel's γ·B plus its mean (a revision whose kernel returned sums has
 them divided by the counts after the call, as ``estimate_distant`` then did,
 inside the timing; a kernel that takes ``start`` sets the rows itself), the
-luminance sums and the fall-back count. All calls share one Geometry, as the
-frames of a still scene do: a kernel that keeps its texels in the Geometry's
-memos relights them from the second call on. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
+luminance sums and the fall-back count. All calls share one Geometry that a
+``GeometryCache`` handed on, as the frames of a still scene do: a kernel that
+keeps its texels in a reused Geometry's memos relights them from its second
+call on. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
 or later. Run from the repo root:
 
     .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N]
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsss.core.geometry import prepare
+from cvsss.core.geometry import GeometryCache
 from cvsss.core.mc import estimator_numba
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
@@ -61,7 +62,9 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
         result = proc.process(frame)
     frame = frames[-1]
     profile = proc.profiles.get(frame)
-    geom = prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
+    cache = GeometryCache()
+    for _ in range(2):  # the second call hands the Geometry on, as a still scene's next frame
+        geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
     counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
     total = int(counts[active].sum())

@@ -688,12 +688,13 @@ def test_kernel_results_do_not_depend_on_the_visiting_order(monkeypatch):
 def test_kernel_started_rows_equal_numpys_start_plus_the_means():
     """With ``start`` the kernel sets each row to γ·B(p) plus the pixel's mean itself:
     from rows of NaN it gives the bits of NumPy's γ·B with the means added; a Geometry
-    reused with other lighting (its texels relit in place) gives the bits of a fresh one."""
+    reused with other lighting (its texels relit in place) gives the bits of a fresh one.
+    Only a reused Geometry keeps the texels (32 bytes per pixel) between calls."""
     from cvsss.core.geometry import GeometryCache
     from cvsss.core.mc import estimator_numba as en
 
-    frames = [scene_frame("flash", n, 48, 32) for n in (2, 3)]
-    assert not np.array_equal(frames[0].lighting, frames[1].lighting)
+    frames = [scene_frame("flash", n, 48, 32) for n in (2, 3, 4)]
+    assert not np.array_equal(frames[1].lighting, frames[2].lighting)
     profile = frame_profile(frames[0], SSSParams())
     cache = GeometryCache()
     size = prepare(frames[0], profile, surface_distance=True).size
@@ -709,9 +710,10 @@ def test_kernel_started_rows_equal_numpys_start_plus_the_means():
         var, fb = en.run_kernel(g, profile, counts, active, *args, distant=distant, start=start)
         return distant, var, fb
 
-    for frame in frames:  # the second frame relights the first one's texels
+    for frame in frames:  # the third frame relights the second one's texels
         # The cache hands on the first frame's Geometry (with this frame's direct light).
         geom = cache.prepare(frame, profile, surface_distance=True)
+        assert geom.reused == (frame is not frames[0])
         for variance in (False, True):
             fresh = prepare(frame, profile, surface_distance=True)
             want = run(fresh, frame, False, variance)
@@ -723,4 +725,6 @@ def test_kernel_started_rows_equal_numpys_start_plus_the_means():
                 assert np.array_equal(got[1], want[1])
             else:
                 assert got[1] is None and want[1] is None
-    assert cache.hits == 1 and en._TEXELS in geom.memos
+        assert (en._TEXELS in geom.memos) == geom.reused
+        assert en._TEXELS not in fresh.memos and not fresh.reused
+    assert cache.hits == 2
