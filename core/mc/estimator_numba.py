@@ -920,14 +920,17 @@ def run_kernel(
     """The ``active`` SSS pixels of ``geom`` with the compiled kernel.
 
     Adds each active pixel's mean weighted difference to its row of ``distant``
-    ((G, 3) float64, in place; see pixel_sums), or with ``start`` (every pixel of
-    ``geom`` active) sets each row to γ·B(p) plus that mean, so that ``distant``
-    may come uninitialised (at 1920×1080 the NumPy γ·B took 4.8 ms): in the kernel, where a pixel's
+    ((G, 3) float64, in place; see pixel_sums): in the kernel, where a pixel's
     sums are at hand, instead of dividing and scattering (P, 3) sums afterwards
     (1.2 ms at 640×360, 5.7 ms through NumPy's fancy indexing when some pixels
-    take no samples, against ~60 ms for the samples). Returns the (P, 2)
-    luminance sums (None without ``variance``) and the fall-back count.
+    take no samples, against ~60 ms for the samples). With ``start`` (every
+    pixel of ``geom`` active) it sets each row to γ·B(p) plus that mean, so
+    ``distant`` may come uninitialised (NumPy's γ·B took 4.8 ms at 1920×1080).
+    Returns the (P, 2) luminance sums (None without ``variance``) and the
+    fall-back count.
     """
+    if start and active.size != geom.size:
+        raise ValueError("start needs every pixel of the Geometry active")
     f32 = np.float32
     h, w = geom.shape
     full_h, full_w = geom.image_shape

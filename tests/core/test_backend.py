@@ -728,3 +728,8 @@ def test_kernel_started_rows_equal_numpys_start_plus_the_means():
         assert (en._TEXELS in geom.memos) == geom.reused
         assert en._TEXELS not in fresh.memos and not fresh.reused
     assert cache.hits == 2
+    # Rows of pixels that take no samples would stay unset: refused.
+    with pytest.raises(ValueError, match="every pixel"):
+        args = (frames[0].lighting, frames[0].depth, 2, 0, 2.0, False, True, 0.75, 0.5)
+        distant = np.empty((size, 3))
+        en.run_kernel(geom, profile, counts, active[1:], *args, distant=distant, start=True)
