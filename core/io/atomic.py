@@ -95,7 +95,9 @@ def fsync_dir(directory: Path) -> None:
 def write_files(files: list[tuple[Path, object]], overwrite: bool) -> None:
     """Write several files so that each appears complete or not at all.
 
-    ``files`` pairs a final path with an ``OpenEXR.File`` or ``bytes``. All
+    ``files`` pairs a final path with ``bytes`` or an object that writes itself
+    into a binary stream (``content.write(stream)``: an ``OpenEXR.File``, a
+    checkpoint's archive). All
     temporary files are written and synced before the first is renamed; on
     failure every temporary file is removed, as is any file this call had
     already put in place.

@@ -8,7 +8,6 @@ written atomically after every frame (:mod:`.atomic`).
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import zipfile
@@ -17,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_bytes
+from .atomic import write_files
 from .errors import CheckpointError
 
 #: Value of the state's ``format`` field.
@@ -25,10 +24,24 @@ CHECKPOINT_FORMAT = "cvsss-checkpoint/2"
 
 
 def save(path: str | os.PathLike, state: Mapping, arrays: Mapping[str, np.ndarray]) -> None:
-    """Write ``state`` (JSON-ready) and ``arrays`` to ``path`` atomically."""
-    buf = io.BytesIO()
-    np.savez(buf, state=np.array(json.dumps({"format": CHECKPOINT_FORMAT, **state})), **arrays)
-    write_bytes(path, buf.getvalue())
+    """Write ``state`` (JSON-ready) and ``arrays`` to ``path`` atomically.
+
+    The archive goes straight into the temporary file: built in memory first, a
+    1920×1080 history's 66 MB checkpoint took 136–160 ms and three copies of
+    itself, against 95–118 ms (the same bytes; one-off timing, 6 saves each).
+    """
+    write_files([(Path(path), _Archive(state, arrays))], overwrite=True)
+
+
+class _Archive:
+    """The ``.npz`` of a checkpoint, written into a stream (:func:`.atomic.write_files`)."""
+
+    def __init__(self, state: Mapping, arrays: Mapping[str, np.ndarray]) -> None:
+        self.state = json.dumps({"format": CHECKPOINT_FORMAT, **state})
+        self.arrays = arrays
+
+    def write(self, stream) -> None:
+        np.savez(stream, state=np.array(self.state), **self.arrays)
 
 
 def load(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:

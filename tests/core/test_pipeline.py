@@ -163,7 +163,10 @@ def test_checkpoint_round_trip(tmp_path):
         proc.process(f)
     path = tmp_path / "h.npz"
     checkpoint.save(path, {"frames_done": [1, 2, 3]}, proc.state())
+    # Written through a temporary file beside it, which is gone.
+    assert [p.name for p in tmp_path.iterdir()] == ["h.npz"]
     state, arrays = checkpoint.load(path)
+    assert sorted(arrays) == sorted(proc.state())
     resumed = make_processor("as_ocv", SSSParams(history_precision="float16"))
     resumed.restore(arrays)
     loaded = resumed.history
