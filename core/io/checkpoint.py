@@ -41,7 +41,14 @@ class _Archive:
         self.arrays = arrays
 
     def write(self, stream) -> None:
-        np.savez(stream, state=np.array(self.state), **self.arrays)
+        # What np.savez writes (stored members, zip64), but closed on an error too: a
+        # write that fails (a full disk) would leave np.savez's ZipFile to close itself
+        # later, on the closed file, printing "Exception ignored" to stderr.
+        members = {"state": np.array(self.state), **self.arrays}
+        with zipfile.ZipFile(stream, mode="w", allowZip64=True) as archive:
+            for key, value in members.items():
+                with archive.open(key + ".npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def load(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
