@@ -432,6 +432,7 @@ def estimate_distant(
             contact,
             distant=distant,
             start=start,
+            samples=total,
         )
     else:
         pix = active_pixels(geom, profile, counts, active, frame, seed)
