@@ -13,6 +13,7 @@ did not tune (README, *Reading the report*):
         --ground-truth --ground-truth-every 5 --ground-truth-spp 512
 """
 
+import os
 import random
 import sys
 
@@ -82,5 +83,6 @@ cam = bpy.context.object
 scene.camera = cam
 direction = (0 - cam.location.x, 0 - cam.location.y, 0.4 - cam.location.z)
 cam.rotation_euler = mathutils.Vector(direction).to_track_quat("-Z", "Y").to_euler()
+os.makedirs(os.path.dirname(os.path.abspath(sys.argv[-1])), exist_ok=True)
 bpy.ops.wm.save_as_mainfile(filepath=sys.argv[-1])
 print("saved", sys.argv[-1])

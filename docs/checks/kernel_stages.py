@@ -47,7 +47,7 @@ KEEP = (
 
 def variants(source: str) -> dict[str, str]:
     """Source of the kernel module cut after each stage (``full``: unchanged)."""
-    source = source.replace("from ..sampling", "from cvsss.core.sampling")
+    source = source.replace("from ..", "from cvsss.core.").replace("from .", "from cvsss.core.mc.")
     source = source.replace("cache=True", "cache=False")
     end = source.index(END)
     out = {"set-up": source[: source.index(LOOP)] + KEEP[0] + source[end:]}
