@@ -49,6 +49,14 @@ def cache_dir() -> Path:
     return base / "cvsss" / "numba"
 
 
+def cache_location() -> Path:
+    """Where numba keeps the compiled kernels: ``NUMBA_CACHE_DIR`` when set, else beside
+    the module (``core/mc/__pycache__``)."""
+    _prepare_cache()
+    folder = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(folder) if folder else Path(__file__).resolve().parent / "__pycache__"
+
+
 def _prepare_cache() -> None:
     """Point numba's cache at a writable directory when the module's own is not."""
     if os.environ.get("NUMBA_CACHE_DIR"):
@@ -132,8 +140,11 @@ def threads() -> int:
     return int(numba.get_num_threads())
 
 
-def warm_up() -> float:
-    """Compile (or load from the disk cache) the numba kernel; seconds it took.
+def warm_up(pixels: int | None = None) -> float:
+    """Compile (or load from the disk cache) the numba kernels; seconds it took.
+
+    ``pixels``: compile only the sampling kernel's build for frames of that many
+    pixels (``estimator_numba.warm_up``); None: both builds.
 
     Raises ImportError when numba is unavailable.
     """
@@ -143,5 +154,5 @@ def warm_up() -> float:
     from . import estimator_numba
 
     t0 = time.perf_counter()
-    estimator_numba.warm_up()
+    estimator_numba.warm_up(pixels)
     return time.perf_counter() - t0

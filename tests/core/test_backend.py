@@ -612,6 +612,31 @@ def test_compiled_kernel_is_cached_on_disk():
     assert out["hits"] >= 2 and out["misses"] == 0
 
 
+@pytest.mark.parametrize(
+    "pixels, build", [(1920 * 1080, "pixel_sums"), (48 * 32, "pixel_sums_serial")]
+)
+def test_warm_up_for_a_frame_size_prepares_the_build_it_takes(pixels, build):
+    """``warm_up(pixels)`` (what Blender's jobs compile beside their first render) loads or
+    compiles the sampling kernel's build that frames of that size take, not the other."""
+    code = textwrap.dedent(
+        f"""
+        import json
+        from cvsss.core.mc import backend, estimator_numba
+        backend.warm_up({pixels})
+        print(json.dumps({{name: len(getattr(estimator_numba, name).overloads)
+                          for name in ("pixel_sums", "pixel_sums_serial")}}))
+        """
+    )
+    backend.warm_up()  # both builds in the disk cache, so the fresh process only loads
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    loaded = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert loaded == {name: int(name == build) for name in loaded}
+    from cvsss.core.mc import estimator_numba
+
+    assert estimator_numba.kernel(0, pixels) is getattr(estimator_numba, build)
+
+
 def test_surface_keys_tell_every_slot_and_object_apart_in_float32():
     """The kernel's texel keys ``slot + K·object``: equal exactly for the same material of
     the same object, the object recovered by floor(key/K), exact in float32 even with
