@@ -15,7 +15,7 @@ from bpy.types import Operator
 from ..core.io.errors import CheckpointError, OutputError, PassError
 from ..core.mc.backend import describe as describe_backend
 from ..core.params import ParameterError
-from ..sss_addon.blender import render
+from ..sss_addon.blender import precompile, render
 from ..sss_addon.blender.passes import RenderError
 
 #: Problems the user can fix: reported without a traceback.
@@ -89,7 +89,10 @@ class _SteppedOperator:
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.modal_handler_add(self)
         wm.progress_begin(0, len(self._job.frames))
-        self._status(context, f"cvsss: starting {len(self._job.frames)} frame(s), ESC to cancel")
+        text = f"cvsss: starting {len(self._job.frames)} frame(s)"
+        if self.samples and not precompile.prepared(self._job.params.backend, self._job.methods):
+            text += " (the first also prepares the numba kernels: a minute on first use)"
+        self._status(context, text + ", ESC to cancel")
         return {"RUNNING_MODAL"}
 
     def _status(self, context, text):

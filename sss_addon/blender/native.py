@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import shutil
 import tempfile
 import threading
@@ -72,6 +73,7 @@ from ...core.io.exr import quiet_native_stderr, read_frame, use_threads
 from ...core.io.sidecar import write_sidecar
 from ...core.run import FrameStream, RunSpec
 from . import materials as sss_materials
+from . import precompile
 from .console import StdoutFilter
 from .passes import (
     PassSetup,
@@ -412,7 +414,11 @@ class Session:
                     path = render_frame(
                         copy, frame, self.passes, specs, layer, self.job.denoise_passes
                     )
-                self.stream.warm_up(self._read(frame, path))
+                frame_passes = self._read(frame, path)
+                precompile.prepare(
+                    self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), _log
+                )
+                self.stream.warm_up(frame_passes)
                 text = (
                     f"warm-up frame {frame} ({index}/{len(frames)}): passes and post "
                     f"{time.perf_counter() - began:.2f} s"
@@ -476,7 +482,9 @@ class Session:
             finish_pass_file(
                 path, self.scene, self.job.view_layer, sidecar, self.job.denoise_passes
             )
-        result = self.stream.step(self._read(frame, path))[self.method]
+        passes = self._read(frame, path)
+        precompile.prepare(self.job.params.backend, self.job.methods, math.prod(passes.shape), _log)
+        result = self.stream.step(passes)[self.method]
         alpha = read_alpha(path, self.job.view_layer.name)
         rgba = np.empty((*result.composite.shape[:2], 4), np.float32)
         rgba[..., :3] = result.composite
@@ -566,6 +574,10 @@ class Session:
             if self.error is None:
                 if self.started and not self.pending and self.still is None and not self.cancelled:
                     self.save_render_result()  # a still rendered without writing (F12)
+                if self.pending and not precompile.prepared(
+                    self.job.params.backend, self.job.methods
+                ):
+                    yield precompile.PREPARING  # UI: in the status bar while the next tick waits
                 if self.stream is None and self.pending:
                     first = self.pending[0][0]
                     if self._open_stream(first):

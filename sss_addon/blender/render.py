@@ -32,6 +32,7 @@ so switching either starts the post-process over (the passes are kept).
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import tempfile
@@ -49,6 +50,7 @@ from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun, format_clock
 from . import ground_truth as gt
 from . import materials as sss_materials
+from . import precompile
 from .console import StdoutFilter
 from .passes import (
     PassSetup,
@@ -109,6 +111,9 @@ class Job:
     #: False: the passes (and ground truth) were rendered elsewhere (chunks on a
     #: farm); they are read, never rendered, and a missing one is an error.
     render_passes: bool = True
+    #: False: the frames are processed elsewhere (tiles on a cluster), so this process
+    #: does not prepare the numba kernels (:mod:`.precompile`).
+    processed_here: bool = True
 
     @property
     def passes_dir(self) -> Path:
@@ -479,9 +484,10 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
         return
     start = time.perf_counter()
     truth = read_combined(step.ground_truth) if step.ground_truth is not None else None
-    done = run.step(
-        read_frame(step.path, number=step.frame), source=step.path.name, ground_truth=truth
-    )
+    frame = read_frame(step.path, number=step.frame)
+    if job.processed_here:
+        precompile.prepare(job.params.backend, job.methods, math.prod(frame.shape), job.log)
+    done = run.step(frame, source=step.path.name, ground_truth=truth)
     step.results, step.rows = done.results, done.rows
     step.post_seconds = time.perf_counter() - start
     step.seconds += step.post_seconds
@@ -536,6 +542,8 @@ def warm_up(job: Job, run: SequenceRun) -> None:
     )
     for step in iter_passes(warm):
         frame = read_frame(step.path, number=step.frame)
+        if job.processed_here:
+            precompile.prepare(job.params.backend, job.methods, math.prod(frame.shape), log)
         run.warm_up(frame)
 
 
@@ -773,6 +781,7 @@ def render_sequence(
         )
         job.range_start = range_start
         job.render_passes = render_passes
+        job.processed_here = processors is None
         if on_job is not None:
             on_job(job)
         # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.

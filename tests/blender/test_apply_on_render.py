@@ -15,7 +15,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_result  # noqa: E402
-from cvsss.sss_addon.blender import native, render  # noqa: E402
+from cvsss.sss_addon.blender import native, precompile, render  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -255,6 +255,31 @@ def test_ui_f12_shows_the_finished_frame(scene, tmp_path, snapshot, ui):
     assert bpy.ops.sss.finish_render() == {"FINISHED"}
     assert state_diff(before, scene_state(scene)) == []
     assert not (tmp_path / "render").exists()
+    saved = tmp_path / "render_result.png"
+    bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
+    want = _colour_managed(scene, expected, tmp_path / "want.png")
+    assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
+
+
+def test_ui_finishing_says_it_prepares_the_kernels_first(
+    scene, tmp_path, snapshot, ui, no_compile, slow_compile
+):
+    """F12 in the UI where the kernels are not prepared yet: the finishing steps show it in
+    the status bar for one tick, then prepare them (after Blender's render, nothing
+    beside) and process the frame."""
+    scene_state, state_diff = snapshot
+    scene.frame_set(1)
+    expected = _reference(scene, tmp_path / "ref")[1]
+    no_compile.clear()  # the reference's job prepared them: start afresh
+    calls = slow_compile(0.2)
+    before = scene_state(scene)
+    assert bpy.ops.render.render() == {"FINISHED"}
+    rendered = time.perf_counter()
+    assert calls == []  # nothing beside Blender's render
+    steps = list(native.active_session().finish_steps())
+    assert steps[0] == precompile.PREPARING and steps[1].startswith("frame 1 "), steps
+    assert calls == [(48 * 27, "cvsss-compile")] and rendered < no_compile["began"]
+    assert state_diff(before, scene_state(scene)) == []
     saved = tmp_path / "render_result.png"
     bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
     want = _colour_managed(scene, expected, tmp_path / "want.png")

@@ -25,10 +25,11 @@ def _mtimes(folder: Path) -> dict[str, int]:
 
 
 @pytest.mark.timeout(400)
-def test_render_with_workers_in_chunks_then_tiled_post(demo_blend, tmp_path):
+def test_render_with_workers_in_chunks_then_tiled_post(demo_blend, tmp_path, no_compile):
     out = tmp_path / "dist"
     argv = ["render", str(demo_blend), "--frames", "1-4", "--out", str(out), "--quiet"]
     assert cli.main([*argv, "--workers", "2", "--chunk", "2", "--tile", "16"]) == 0
+    assert not no_compile  # the workers process the tiles: no kernels prepared here
     assert sorted(_mtimes(out / "passes")) == [f"{n:04d}.exr" for n in (1, 2, 3, 4)]
     assert (out / "metrics.csv").exists()
     # The plain command on the same passes writes the same results, bit for bit.
@@ -40,6 +41,7 @@ def test_render_with_workers_in_chunks_then_tiled_post(demo_blend, tmp_path):
         == 0
     )
     assert _mtimes(plain / "passes") == before  # reused, not rendered again
+    assert "ended" in no_compile  # processed here: prepared first
     assert output_differences(plain, out) == []
 
     # Resumable: only the missing pass file is rendered again.

@@ -1,0 +1,109 @@
+"""The first render on a machine: the numba kernels prepared before the first post-process
+or compiled inside it.
+
+Renders the flash demo scene (``demo_blend``) through ``render_sequence`` (what
+``cvsss render`` and the Render Sequence operator run) with ``as_ccv`` on the
+numba backend, each time in a fresh process with an empty ``NUMBA_CACHE_DIR``,
+so that every run compiles the kernels as a fresh install does. ``prepare``:
+as shipped, ``sss_addon.blender.precompile.prepare`` compiles the kernels for
+the frame size before the first post-process and logs it; ``inline``: that step
+disabled, so the first post-process compiles what it calls, silently, as
+before. Runs alternate between the two (a slow spell of a shared machine hits
+both). Prints each run's wall time of the whole ``render_sequence`` call and of
+its first frame, and the lines the job logs about the compile. Run from the
+repo root:
+
+    .venv/bin/python docs/checks/first_use.py [--res 320x180] [--samples 64] [--frames 2] [--rounds 1]
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def child(variant: str, res: str, samples: int, frames: int, out: Path) -> None:
+    import bpy
+
+    import cvsss
+    from cvsss.sss_addon.blender import precompile
+    from cvsss.sss_addon.blender.render import render_sequence
+
+    cvsss.register()
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    bpy.ops.sss.build_demo(scene_name="flash")
+    scene = bpy.context.scene
+    w, h = (int(v) for v in res.split("x"))
+    scene.render.resolution_x, scene.render.resolution_y = w, h
+    scene.render.resolution_percentage = 100
+    scene.cycles.samples = samples
+    if variant == "inline":
+        precompile.prepare = lambda requested, methods, pixels, log: None
+    lines: list[tuple[float, str]] = []
+    began = time.perf_counter()
+
+    def log(text: str) -> None:
+        lines.append((time.perf_counter() - began, text))
+
+    render_sequence(
+        scene,
+        (1, frames),
+        out,
+        ["as_ccv"],
+        {"backend": "numba"},
+        "CYCLES",
+        True,
+        log,
+        reference=False,
+        ground_truth=False,
+    )
+    wall = time.perf_counter() - began
+    first = next(t for t, text in lines if " as_ccv:" in text)
+    compiled = [text for _, text in lines if "numba kernels" in text]
+    print("REPORT " + json.dumps({"wall": wall, "first": first, "compiled": compiled}))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--res", default="320x180")
+    ap.add_argument("--samples", type=int, default=64)
+    ap.add_argument("--frames", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--child", choices=("prepare", "inline"), help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child:
+        child(a.child, a.res, a.samples, a.frames, a.out)
+        return
+    print(
+        f"flash demo, {a.res}, {a.samples} Cycles samples, {a.frames} frame(s), " "as_ccv on numba"
+    )
+    for _ in range(a.rounds):
+        for variant in ("inline", "prepare"):
+            with tempfile.TemporaryDirectory() as tmp:
+                env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
+                run = subprocess.run(
+                    [sys.executable, __file__, "--child", variant, "--res", a.res,
+                     "--samples", str(a.samples), "--frames", str(a.frames),
+                     "--out", str(Path(tmp) / "out")],
+                    capture_output=True, text=True, env=env, check=False,
+                )  # fmt: skip
+                if run.returncode:
+                    sys.exit(run.stdout[-2000:] + run.stderr[-2000:])
+                line = next(x for x in run.stdout.splitlines() if x.startswith("REPORT "))
+                report = json.loads(line.removeprefix("REPORT "))
+                print(
+                    f"  {variant:>7}: whole call {report['wall']:6.1f} s, first frame done at "
+                    f"{report['first']:6.1f} s  {' '.join(report['compiled'])}"
+                )
+
+
+if __name__ == "__main__":
+    main()
