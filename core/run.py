@@ -889,6 +889,7 @@ def run_folder(
     processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
     lookahead: bool = False,
     submit: Callable[[Callable[[], None]], Any] | None = None,
+    prepare: Callable[[Frame], None] | None = None,
 ) -> list[dict]:
     """Post-process every frame of a folder of pass EXRs (the ``cvsss post`` job).
 
@@ -909,6 +910,9 @@ def run_folder(
         elsewhere: their work then overlaps the writing)
     submit : as :class:`SequenceRun`: write each frame's files while the next is
         read (``cvsss post`` does)
+    prepare : called with the first frame to be processed, before it is (the
+        front-ends compile the numba kernels there, saying so); not called when
+        every frame is done already
 
     Returns
     -------
@@ -974,6 +978,8 @@ def run_folder(
     try:
         for k, (number, path) in enumerate(todo):
             frame = following if following is not None else load(number, path)
+            if k == 0 and prepare is not None:
+                prepare(frame)
             following = load(*todo[k + 1]) if lookahead and k + 1 < len(todo) else None
             gt = None
             if ground_truth is not None:

@@ -15,7 +15,8 @@ from bpy.types import Operator
 from ..core.io.errors import CheckpointError, OutputError, PassError
 from ..core.mc.backend import describe as describe_backend
 from ..core.params import ParameterError
-from ..sss_addon.blender import precompile, render
+from ..sss_addon import precompile
+from ..sss_addon.blender import render
 from ..sss_addon.blender.passes import RenderError
 
 #: Problems the user can fix: reported without a traceback.

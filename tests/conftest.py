@@ -1,5 +1,8 @@
 """Shared test configuration: fixed seeds, and the bpy marker lane."""
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -8,3 +11,38 @@ import pytest
 def rng():
     """A fixed-seed generator; tests never use the global RNG."""
     return np.random.default_rng(12345)
+
+
+# -- the numba kernels' preparation (sss_addon.precompile) ---------------------------
+@pytest.fixture
+def no_compile():
+    """No kernels prepared in this process yet (the module's state is per process)."""
+    from cvsss.sss_addon import precompile
+
+    saved = dict(precompile._state)
+    precompile._state.clear()
+    yield precompile._state
+    precompile._state.clear()
+    precompile._state.update(saved)
+
+
+@pytest.fixture
+def slow_compile(monkeypatch):
+    """``slow_compile(seconds, error=None)``: the kernels' warm-up becomes a sleep (then
+    raises ``error``); returns the list of its calls, (pixels, thread name) each."""
+    from cvsss.core.mc import backend as mc_backend
+
+    def make(seconds: float, error: Exception | None = None) -> list:
+        calls = []
+
+        def warm_up(pixels=None):
+            calls.append((pixels, threading.current_thread().name))
+            time.sleep(seconds)
+            if error is not None:
+                raise error
+            return seconds
+
+        monkeypatch.setattr(mc_backend, "warm_up", warm_up)
+        return calls
+
+    return make

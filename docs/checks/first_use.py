@@ -5,7 +5,7 @@ Renders the flash demo scene (``demo_blend``) through ``render_sequence`` (what
 ``cvsss render`` and the Render Sequence operator run) with ``as_ccv`` on the
 numba backend, each time in a fresh process with an empty ``NUMBA_CACHE_DIR``,
 so that every run compiles the kernels as a fresh install does. ``prepare``:
-as shipped, ``sss_addon.blender.precompile.prepare`` compiles the kernels for
+as shipped, ``sss_addon.precompile.prepare`` compiles the kernels for
 the frame size before the first post-process and logs it; ``inline``: that step
 disabled, so the first post-process compiles what it calls, silently, as
 before. Runs alternate between the two (a slow spell of a shared machine hits
@@ -30,7 +30,7 @@ def child(variant: str, res: str, samples: int, frames: int, out: Path) -> None:
     import bpy
 
     import cvsss
-    from cvsss.sss_addon.blender import precompile
+    from cvsss.sss_addon import precompile
     from cvsss.sss_addon.blender.render import render_sequence
 
     cvsss.register()

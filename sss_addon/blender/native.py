@@ -72,8 +72,8 @@ from bpy.app.handlers import persistent
 from ...core.io.exr import quiet_native_stderr, read_frame, use_threads
 from ...core.io.sidecar import write_sidecar
 from ...core.run import FrameStream, RunSpec
+from .. import precompile
 from . import materials as sss_materials
-from . import precompile
 from .console import StdoutFilter
 from .passes import (
     PassSetup,

@@ -48,9 +48,9 @@ from ...core.methods import METHODS, MethodOptions
 from ...core.params import SSSParams
 from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun, format_clock
+from .. import precompile
 from . import ground_truth as gt
 from . import materials as sss_materials
-from . import precompile
 from .console import StdoutFilter
 from .passes import (
     PassSetup,
@@ -486,7 +486,7 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
     truth = read_combined(step.ground_truth) if step.ground_truth is not None else None
     frame = read_frame(step.path, number=step.frame)
     if job.processed_here:
-        precompile.prepare(job.params.backend, job.methods, math.prod(frame.shape), job.log)
+        precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), job.log)
     done = run.step(frame, source=step.path.name, ground_truth=truth)
     step.results, step.rows = done.results, done.rows
     step.post_seconds = time.perf_counter() - start
@@ -543,7 +543,7 @@ def warm_up(job: Job, run: SequenceRun) -> None:
     for step in iter_passes(warm):
         frame = read_frame(step.path, number=step.frame)
         if job.processed_here:
-            precompile.prepare(job.params.backend, job.methods, math.prod(frame.shape), log)
+            precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), log)
         run.warm_up(frame)
 
 

@@ -47,6 +47,7 @@ from ...core.methods import MethodOptions
 from ...core.params import SSSParams
 from ...core.run import RunSpec, format_clock, run_folder
 from ...core.synthetic import sequence
+from ..precompile import before_first_frame
 from . import report as plots
 from .truth import (
     TruthPlan,
@@ -823,6 +824,7 @@ def run_demo(
             existing="continue",
             log=progress if log else None,
             ground_truth=ground_truth,
+            prepare=before_first_frame(params.backend, DEMO_METHODS, log),
         )
         summary[scene] = summarize(rows)
         if truth is not None:
@@ -917,6 +919,7 @@ def truth_extras(
             RunSpec(truth.methods, params, options),
             existing="continue",
             ground_truth=scene_dir / "ground_truth",
+            prepare=before_first_frame(params.backend, truth.methods, log),
         )
     extra["equal_time"] = equal_time_rows(scene_dir, frames, truth, samples)
     extra["quality"] = quality_against_truth(scene_dir, params, options, log)
@@ -970,6 +973,7 @@ def quality_against_truth(
             RunSpec(("as_ccv",), params.replace(target_variance=sigma), options),
             existing="continue",
             ground_truth=ground_truth,
+            prepare=before_first_frame(params.backend, ("as_ccv",), log),
         )
         rows.append(row(sigma, metrics))
     own = scene_dir / "metrics.csv"

@@ -468,7 +468,10 @@ def _post(args: argparse.Namespace) -> int:
             except FarmError as exc:
                 raise UserError(str(exc)) from None
             return 0
-        run_folder(args.passes, args.out, spec, **common)
+        from ..precompile import before_first_frame
+
+        kernels = before_first_frame(spec.params.backend, spec.order, common["log"])
+        run_folder(args.passes, args.out, spec, prepare=kernels, **common)
     return 0
 
 

@@ -14,8 +14,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
-import time
 import tomllib
 from pathlib import Path
 
@@ -105,41 +103,6 @@ def _run_check_script(name: str, *args, cwd: Path) -> tuple[dict, str]:
 def check_script():
     """``check_script(name, *args, cwd=…)``: run a check script -> (report, stdout)."""
     return _run_check_script
-
-
-# -- the numba kernels' preparation (sss_addon.blender.precompile) ---------------------------
-@pytest.fixture
-def no_compile():
-    """No kernels prepared in this process yet (the module's state is per process)."""
-    from cvsss.sss_addon.blender import precompile
-
-    saved = dict(precompile._state)
-    precompile._state.clear()
-    yield precompile._state
-    precompile._state.clear()
-    precompile._state.update(saved)
-
-
-@pytest.fixture
-def slow_compile(monkeypatch):
-    """``slow_compile(seconds, error=None)``: the kernels' warm-up becomes a sleep (then
-    raises ``error``); returns the list of its calls, (pixels, thread name) each."""
-    from cvsss.core.mc import backend as mc_backend
-
-    def make(seconds: float, error: Exception | None = None) -> list:
-        calls = []
-
-        def warm_up(pixels=None):
-            calls.append((pixels, threading.current_thread().name))
-            time.sleep(seconds)
-            if error is not None:
-                raise error
-            return seconds
-
-        monkeypatch.setattr(mc_backend, "warm_up", warm_up)
-        return calls
-
-    return make
 
 
 # -- scene state snapshots (independent of the add-on's own snapshot code) ------------------

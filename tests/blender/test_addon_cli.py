@@ -3,6 +3,7 @@
 import csv
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,30 @@ def test_warmup_frames_fill_the_history_without_results(demo, tmp_path, capsys):
     warm = read_result(out / "as_ocv" / "0001.exr")["Composite"]
     assert cli.main([*args, "--warmup-frames", "0", "--quiet"]) == 0
     assert not np.array_equal(warm, read_result(out / "as_ocv" / "0001.exr")["Composite"])
+
+
+def test_render_sequence_prepares_after_the_render_before_the_post(
+    demo, tmp_path, no_compile, slow_compile
+):
+    """The compile runs between the first passes' render and the first post-process, with
+    nothing beside it (compiling beside Blender's render crashed the bpy module)."""
+    from cvsss.sss_addon.blender.render import render_sequence
+
+    calls = slow_compile(0.3)
+    lines: list[tuple[float, str]] = []
+    render_sequence(
+        None,
+        (2, 2),
+        tmp_path / "run",
+        ["as_ccv"],
+        None,
+        "CYCLES",
+        False,
+        lambda text: lines.append((time.perf_counter(), text)),
+        reference=False,
+    )
+    assert calls == [(48 * 32, "cvsss-compile")]
+    rendered = next(t for t, text in lines if "passes rendered" in text)
+    processed = next(t for t, text in lines if " as_ccv:" in text)
+    assert rendered < no_compile["began"] and no_compile["ended"] <= processed
+    assert (tmp_path / "run" / "as_ccv" / "0002.exr").is_file()

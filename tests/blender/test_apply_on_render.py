@@ -15,7 +15,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_result  # noqa: E402
-from cvsss.sss_addon.blender import native, precompile, render  # noqa: E402
+from cvsss.sss_addon import precompile  # noqa: E402
+from cvsss.sss_addon.blender import native, render  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 

@@ -194,3 +194,25 @@ def test_every_help_prints(capsys):
         assert stop.value.code == 0, command
         out = capsys.readouterr().out
         assert "usage:" in out, command
+
+
+def test_post_prepares_the_kernels_before_the_first_frame(
+    passes, tmp_path, capsys, monkeypatch, no_compile, slow_compile
+):
+    """A compile longer than NOTICE is announced and reported before the first frame's
+    line; a run with every frame done already compiles nothing."""
+    from cvsss.sss_addon import precompile
+
+    monkeypatch.setattr(precompile, "NOTICE", 0.1)
+    calls = slow_compile(0.4)
+    argv = ["post", str(passes), "--out", str(tmp_path / "out"), "--method", "none,as_ccv"]
+    assert cli.main([*argv, "--backend", "numba"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert calls == [(27 * 48, "cvsss-compile")]
+    first = next(i for i, line in enumerate(lines) if line.startswith("frame 1/"))
+    assert lines[first - 2].startswith("compiling the numba kernels (first use")
+    assert lines[first - 1].startswith("compiled the numba kernels in 0.")
+    no_compile.clear()
+    assert cli.main([*argv, "--backend", "numba", "--resume"]) == 0
+    assert calls == [(27 * 48, "cvsss-compile")]  # all done: not prepared again
+    assert not no_compile

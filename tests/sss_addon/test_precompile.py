@@ -1,4 +1,4 @@
-"""sss_addon.blender.precompile: the numba kernels prepared before the first frame is
+"""sss_addon.precompile: the numba kernels prepared before the first frame is
 processed, on a thread the caller waits for, and said out loud when that takes long.
 
 The compile is stood in for by a timed sleep where the test is about timing and
@@ -10,11 +10,10 @@ import re
 import time
 
 import numpy as np
-import pytest
 
 from cvsss.core.mc import backend as mc_backend
 from cvsss.core.mc import estimator_numba
-from cvsss.sss_addon.blender import precompile
+from cvsss.sss_addon import precompile
 
 ANNOUNCE = "compiling the numba kernels (first use on this machine, about a minute)…"
 MC = ("none", "as_ccv")  # a job with one method that samples
@@ -91,32 +90,3 @@ def test_real_kernels_are_prepared(no_compile, monkeypatch):
         scene_frame("flash", 1, 48, 32)
     )
     assert result.spp > 0 and np.isfinite(result.composite).all()
-
-
-@pytest.mark.bpy
-def test_render_sequence_prepares_after_the_render_before_the_post(
-    demo, tmp_path, no_compile, slow_compile
-):
-    """The compile runs between the first passes' render and the first post-process, with
-    nothing beside it (compiling beside Blender's render crashed the bpy module)."""
-    pytest.importorskip("bpy")
-    from cvsss.sss_addon.blender.render import render_sequence
-
-    calls = slow_compile(0.3)
-    lines: list[tuple[float, str]] = []
-    render_sequence(
-        None,
-        (2, 2),
-        tmp_path / "run",
-        ["as_ccv"],
-        None,
-        "CYCLES",
-        False,
-        lambda text: lines.append((time.perf_counter(), text)),
-        reference=False,
-    )
-    assert calls == [(48 * 32, "cvsss-compile")]
-    rendered = next(t for t, text in lines if "passes rendered" in text)
-    processed = next(t for t, text in lines if " as_ccv:" in text)
-    assert rendered < no_compile["began"] and no_compile["ended"] <= processed
-    assert (tmp_path / "run" / "as_ccv" / "0002.exr").is_file()

@@ -5,10 +5,12 @@ The first job that samples on the numba backend compiles the kernels
 on the 2-core bench machine); later processes load them from numba's disk
 cache in under a second. Compiled inside the first frame's post-process, that
 minute passed without a word: Blender's UI froze, a headless render printed
-nothing. Now every post-process of the glue calls :func:`prepare` first: it
-compiles (or loads) the kernels the frame size needs and, when that takes
-longer than :data:`NOTICE` seconds, says what is happening and then how long
-it took. In the UI, finishing an Apply on Render (``sss.finish_render``) shows
+nothing. Now every job calls :func:`prepare` before it processes its first
+frame (``cvsss render``, the operators and Apply on Render directly; ``cvsss
+post`` and ``cvsss demo`` through ``run_folder``'s ``prepare``,
+:func:`before_first_frame`): it compiles (or loads) the kernels the frame size
+needs and, when that takes longer than :data:`NOTICE` seconds, says what is
+happening and then how long it took. In the UI, finishing an Apply on Render (``sss.finish_render``) shows
 :data:`PREPARING` in the status bar on the tick before, and the Render
 Sequence operators say it in their starting status (:func:`prepared` tells
 whether a compile is due).
@@ -25,12 +27,13 @@ at once.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
 
-from ...core.mc import backend as mc_backend
-from ...core.methods import METHODS
+from ..core.mc import backend as mc_backend
+from ..core.methods import METHODS
 
 #: A compile still running after this many seconds is announced; one that took longer is
 #: reported with its time.
@@ -96,3 +99,15 @@ def _compile(pixels: int | None) -> None:
     except Exception as exc:  # the frame's own call raises it where it belongs
         _state["error"] = exc
     _state["ended"] = time.perf_counter()
+
+
+def before_first_frame(
+    requested: str, methods: Sequence[str], log: Callable[[str], None] | None
+) -> Callable:
+    """``core.run.run_folder``'s ``prepare`` (``cvsss post``, ``cvsss demo``): :func:`prepare`
+    for the first frame's size, called with the first frame to be processed."""
+
+    def kernels(frame) -> None:
+        prepare(requested, methods, math.prod(frame.shape), log)
+
+    return kernels
