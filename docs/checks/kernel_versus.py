@@ -28,12 +28,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from flash import steady
 
 from cvsss.core.geometry import GeometryCache
 from cvsss.core.mc import estimator_numba
-from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
-from cvsss.core.synthetic import scene_frame
 
 
 def load_revision(rev: str, folder: Path):
@@ -56,12 +55,7 @@ def load_revision(rev: str, folder: Path):
 def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     w, h = size
     params = SSSParams(backend="numba")
-    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
-    proc = make_processor("as_ccv", params)
-    for frame in frames:
-        result = proc.process(frame)
-    frame = frames[-1]
-    profile = proc.profiles.get(frame)
+    frame, profile, result = steady(size, params)
     cache = GeometryCache()
     for _ in range(2):  # the second call hands the Geometry on, as a still scene's next frame
         geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")

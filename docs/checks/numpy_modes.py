@@ -19,24 +19,18 @@ import argparse
 import time
 
 import numpy as np
+from flash import steady
 
 from cvsss.core.eval.bench import gather_ns_per_sample
 from cvsss.core.geometry import prepare
 from cvsss.core.mc import estimator
-from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
-from cvsss.core.synthetic import scene_frame
 
 
 def measure(size: tuple[int, int], calls: int) -> None:
     w, h = size
     params = SSSParams(backend="numpy")
-    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
-    proc = make_processor("as_ccv", params)
-    for frame in frames:
-        result = proc.process(frame)
-    frame = frames[-1]
-    profile = proc.profiles.get(frame)
+    frame, profile, result = steady(size, params)
     surface = prepare(frame, profile, surface_distance=True, core_only=True)
     planar = prepare(frame, profile, surface_distance=False, core_only=True)
     counts = result.counts.reshape(-1)[surface.index].astype(np.int64)

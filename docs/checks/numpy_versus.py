@@ -26,13 +26,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from flash import steady
 
 from cvsss.core.geometry import prepare
 from cvsss.core.mc import estimator
-from cvsss.core.methods import MethodOptions, make_processor
+from cvsss.core.methods import MethodOptions
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles import PROFILE_NAMES, ProfileChoice
-from cvsss.core.synthetic import scene_frame
 
 
 def load_revision(rev: str, folder: Path):
@@ -54,15 +54,10 @@ def load_revision(rev: str, folder: Path):
 def compare(modules: dict, size: tuple[int, int], calls: int, kind: str) -> None:
     w, h = size
     params = SSSParams()
-    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
     # The dipole needs measured materials: the synthetic scene's skin and marble slots.
     presets = ((1, "skin1"), (2, "marble")) if kind == "dipole" else ()
     choice = ProfileChoice(profile=kind, slot_materials=presets)
-    proc = make_processor("as_ccv", params, MethodOptions(profile=choice))
-    for frame in frames:
-        result = proc.process(frame)
-    frame = frames[-1]
-    profile = proc.profiles.get(frame)
+    frame, profile, result = steady(size, params, MethodOptions(profile=choice))
     surface = prepare(frame, profile, surface_distance=True, core_only=True)
     planar = prepare(frame, profile, surface_distance=False, core_only=True)
     counts = result.counts.reshape(-1)[surface.index].astype(np.int64)
