@@ -10,10 +10,10 @@ frame (``cvsss render``, the operators and Apply on Render directly; ``cvsss
 post`` and ``cvsss demo`` through ``run_folder``'s ``prepare``,
 :func:`before_first_frame`): it compiles (or loads) the kernels the frame size
 needs and, when that takes longer than :data:`NOTICE` seconds, says what is
-happening and then how long it took. In the UI, finishing an Apply on Render (``sss.finish_render``) shows
-:data:`PREPARING` in the status bar on the tick before, and the Render
-Sequence operators say it in their starting status (:func:`prepared` tells
-whether a compile is due).
+happening and then how long it took. In the UI, finishing an Apply on Render
+(``sss.finish_render``) shows :data:`PREPARING` in the status bar on the tick
+before, and the Render Sequence operators say it in their starting status
+(:func:`prepared` tells whether a compile is due).
 
 The compile runs on a thread only so that the caller can time it out and
 speak; the caller waits for it, doing nothing else. Nothing may run beside it:

@@ -1,4 +1,5 @@
-"""Shared test configuration: fixed seeds, and the bpy marker lane."""
+"""Shared test configuration: fixed seeds, the bpy marker lane, and the kernels' preparation
+state (``no_compile``, ``slow_compile``)."""
 
 import threading
 import time

@@ -616,7 +616,7 @@ def test_compiled_kernel_is_cached_on_disk():
     "pixels, build", [(1920 * 1080, "pixel_sums"), (48 * 32, "pixel_sums_serial")]
 )
 def test_warm_up_for_a_frame_size_prepares_the_build_it_takes(pixels, build):
-    """``warm_up(pixels)`` (what Blender's jobs compile beside their first render) loads or
+    """``warm_up(pixels)`` (what a job prepares before its first frame) loads or
     compiles the sampling kernel's build that frames of that size take, not the other."""
     code = textwrap.dedent(
         f"""
