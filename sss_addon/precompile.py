@@ -73,6 +73,9 @@ def prepare(
     """
     if prepared(requested, methods):
         return
+    # numba's threading layer (Blender's TBB inside Blender) starts on this thread, as
+    # it did when the first frame compiled the kernels; the thread's kernels join it.
+    mc_backend.threads()
     began = time.perf_counter()
     thread = threading.Thread(target=_compile, args=(pixels,), name="cvsss-compile")
     _state.update(began=began, error=None)
