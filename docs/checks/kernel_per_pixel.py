@@ -17,10 +17,10 @@ the same run with the 32-spp counts). Run from the repo root:
 """
 
 import argparse
-import time
 
 import numba
 import numpy as np
+from shared import timed_kernel
 
 from cvsss.core.eval.bench import gather_ns_per_sample
 from cvsss.core.geometry import prepare
@@ -43,50 +43,36 @@ def main() -> None:
     profile = ProfileCache(params, None).get(frame)
     geom = prepare(frame, profile, surface_distance=True, backend="numba")
     active = np.flatnonzero(geom.gamma_sum > 0)
-    timed = {}
-    original = estimator_numba.kernel
-
-    def kernel(samples, pixels=0):
-        fn = estimator_numba.pixel_sums  # the parallel build at every count
-
-        def run(*args):
-            t0 = time.perf_counter()
-            out = fn(*args)
-            timed["s"] = time.perf_counter() - t0
-            return out
-
-        return run
-
-    estimator_numba.kernel = kernel
     threads = numba.get_num_threads()
     try:
-        for n_threads in sorted({1, threads}):
-            numba.set_num_threads(n_threads)
-            best = {n: np.inf for n in COUNTS}
-            for _ in range(a.calls + 1):  # the first round compiles or loads
-                for n in COUNTS:
-                    counts = np.full(geom.size, n, np.int64)
-                    estimator_numba.run_kernel(
-                        geom, profile, counts, active, frame.lighting, frame.depth,
-                        2, 0, params.depth_slope, False, True, 1.0, params.contact,
-                        distant=np.zeros((geom.size, 3)),
-                    )  # fmt: skip
-                    best[n] = min(best[n], timed["s"])
-            x = np.array(COUNTS, float) * active.size
-            y = np.array([best[n] for n in COUNTS])
-            slope, intercept = np.polyfit(x, y, 1)
-            rows = "  ".join(f"{n}: {best[n] * 1e3:.1f}" for n in COUNTS)
-            print(f"{w}x{h}, {active.size} pixels, {n_threads} thread(s), ms per call: {rows}")
-            image = np.zeros(h * w, np.int64)
-            image[geom.index[active]] = COUNTS[-1]
-            gather = gather_ns_per_sample(frame.lighting, image.reshape(h, w))
-            print(
-                f"  fit: {intercept * 1e9 / active.size:.0f} ns per pixel + "
-                f"{slope * 1e9:.1f} ns per sample (wall); gather roofline {gather:.2f} ns: "
-                f"{slope * 1e9 / gather:.1f}x per sample"
-            )
+        # The parallel build at every count.
+        with timed_kernel(estimator_numba.pixel_sums) as timed:
+            for n_threads in sorted({1, threads}):
+                numba.set_num_threads(n_threads)
+                best = {n: np.inf for n in COUNTS}
+                for _ in range(a.calls + 1):  # the first round compiles or loads
+                    for n in COUNTS:
+                        counts = np.full(geom.size, n, np.int64)
+                        estimator_numba.run_kernel(
+                            geom, profile, counts, active, frame.lighting, frame.depth,
+                            2, 0, params.depth_slope, False, True, 1.0, params.contact,
+                            distant=np.zeros((geom.size, 3)),
+                        )  # fmt: skip
+                        best[n] = min(best[n], timed["s"])
+                x = np.array(COUNTS, float) * active.size
+                y = np.array([best[n] for n in COUNTS])
+                slope, intercept = np.polyfit(x, y, 1)
+                rows = "  ".join(f"{n}: {best[n] * 1e3:.1f}" for n in COUNTS)
+                print(f"{w}x{h}, {active.size} pixels, {n_threads} thread(s), ms per call: {rows}")
+                image = np.zeros(h * w, np.int64)
+                image[geom.index[active]] = COUNTS[-1]
+                gather = gather_ns_per_sample(frame.lighting, image.reshape(h, w))
+                print(
+                    f"  fit: {intercept * 1e9 / active.size:.0f} ns per pixel + "
+                    f"{slope * 1e9:.1f} ns per sample (wall); gather roofline {gather:.2f} ns: "
+                    f"{slope * 1e9 / gather:.1f}x per sample"
+                )
     finally:
-        estimator_numba.kernel = original
         numba.set_num_threads(threads)
 
 

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from flash import steady
+from shared import steady
 
 from cvsss.core.geometry import GeometryCache
 from cvsss.core.mc import estimator_numba

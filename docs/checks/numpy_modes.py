@@ -19,7 +19,7 @@ import argparse
 import time
 
 import numpy as np
-from flash import steady
+from shared import steady
 
 from cvsss.core.eval.bench import gather_ns_per_sample
 from cvsss.core.geometry import prepare

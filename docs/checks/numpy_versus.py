@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from flash import steady
+from shared import steady
 
 from cvsss.core.geometry import prepare
 from cvsss.core.mc import estimator

@@ -17,8 +17,9 @@ import argparse
 import time
 
 import numpy as np
+from shared import timed_kernel
 
-from cvsss.core.mc import estimator, estimator_numba
+from cvsss.core.mc import estimator
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.synthetic import scene_frame
@@ -35,22 +36,7 @@ def measure(w: int, h: int, calls: int) -> None:
     geom = proc._geometry.prepare(frame, profile, **options)
     counts, _ = proc._counts(geom, proc._aligned_history(frame))
     assert geom.reused, "frame 7 of a still scene reuses the Geometry"
-    in_kernel = {}
-    build = estimator_numba.kernel
-
-    def timed_kernel(samples, pixels=0):
-        fn = build(samples, pixels)
-
-        def run(*args):
-            t0 = time.perf_counter()
-            out = fn(*args)
-            in_kernel["s"] = time.perf_counter() - t0
-            return out
-
-        return run
-
-    estimator_numba.kernel = timed_kernel
-    try:
+    with timed_kernel() as in_kernel:
 
         def step() -> tuple[float, float]:
             t0 = time.perf_counter()
@@ -69,8 +55,6 @@ def measure(w: int, h: int, calls: int) -> None:
                 if way == "anew":
                     geom.memos.clear()
                 times[way].append(step())
-    finally:
-        estimator_numba.kernel = build
     print(f"{w}x{h}: {geom.size} SSS pixels, {counts.sum() / geom.size:.1f} spp (ms)")
     for way, t in times.items():
         t = np.array(t) * 1e3

@@ -1,0 +1,57 @@
+"""Shared by the check scripts beside it: a steady ``as_ccv`` frame of the bench's flash
+scene, and the compiled kernel's calls timed.
+
+Not a check itself; the scripts import it by name (Python puts a script's own
+folder first on ``sys.path``).
+"""
+
+import contextlib
+import time
+from collections.abc import Iterator
+
+from cvsss.core.frame import Frame
+from cvsss.core.mc import estimator_numba
+from cvsss.core.methods import MethodOptions, make_processor
+from cvsss.core.params import SSSParams
+from cvsss.core.result import FrameResult
+from cvsss.core.synthetic import scene_frame
+
+
+def steady(
+    size: tuple[int, int], params: SSSParams, options: MethodOptions | None = None
+) -> tuple[Frame, object, FrameResult]:
+    """Frame 3 of the flash sequence (``core.synthetic``) at ``size`` (W, H pixels) after
+    frames 1–2 through ``as_ccv``: the frame, its profile and its result (whose sample
+    counts are a steady frame's)."""
+    w, h = size
+    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
+    proc = make_processor("as_ccv", params, options or MethodOptions())
+    for frame in frames:
+        result = proc.process(frame)
+    return frames[-1], proc.profiles.get(frames[-1]), result
+
+
+@contextlib.contextmanager
+def timed_kernel(build=None) -> Iterator[dict]:
+    """``estimator_numba.kernel`` wrapped for the ``with`` block: each call of the kernel
+    it returns puts its seconds in the yielded dict (``"s"``). ``build``: that build
+    at every count (e.g. ``pixel_sums``, the parallel one); None: the one it picks."""
+    timed: dict = {}
+    original = estimator_numba.kernel
+
+    def kernel(samples, pixels=0):
+        fn = build or original(samples, pixels)
+
+        def run(*args):
+            t0 = time.perf_counter()
+            out = fn(*args)
+            timed["s"] = time.perf_counter() - t0
+            return out
+
+        return run
+
+    estimator_numba.kernel = kernel
+    try:
+        yield timed
+    finally:
+        estimator_numba.kernel = original
