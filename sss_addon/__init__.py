@@ -33,12 +33,24 @@ def _console_log(on: bool) -> None:
 
 
 def register():
+    import bpy
+
+    from ..core.methods import METHODS
+    from . import precompile
+
     _console_log(True)
     for module in _modules():
         module.register()
+    if not bpy.app.background:
+        # Installed, updated or Blender opened: the numba kernels compile in a process
+        # of their own while the user works, instead of at the first render.
+        precompile.start_background("auto", tuple(METHODS))
 
 
 def unregister():
+    from . import precompile
+
+    precompile.stop_background()
     for module in reversed(_modules()):
         module.unregister()
     _console_log(False)

@@ -23,14 +23,30 @@ module creation in 3 of 10 runs of ``tests/blender/native_check.py`` (Apply on
 Render with a warm-up frame, into an empty cache), and numba's ``workqueue``
 threading layer aborts the process when two threads launch parallel regions
 at once.
+
+A process of its own can compile beside Blender: :func:`start_background`
+runs ``compile_kernels.py`` on Blender's Python at low priority when the cache
+is not complete (``core.mc.backend.kernels_cached``). The add-on starts it
+when it registers in Blender's UI (installed, updated, or Blender opened), so
+that the minute passes while the user works, and every render job starts it
+before Blender renders the first frame. :func:`prepare` then waits for that
+process, if it is still running, and loads what it compiled.
+``CVSSS_BACKGROUND_COMPILE=0`` turns it off.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import json
+import logging
 import math
+import os
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from ..core.mc import backend as mc_backend
 from ..core.methods import METHODS
@@ -42,6 +58,11 @@ NOTICE = 2.0
 PREPARING = "preparing the numba kernels (about a minute the first time on this machine)"
 
 _state: dict = {}
+#: The script the background compile runs (:func:`start_background`).
+CHILD = Path(__file__).with_name("compile_kernels.py")
+
+#: The background compile's process (:func:`start_background`), while this process has one.
+_background: dict = {}
 
 
 def prepared(requested: str, methods: Sequence[str]) -> bool:
@@ -73,6 +94,7 @@ def prepare(
     """
     if prepared(requested, methods):
         return
+    _wait_for_background(log)
     # numba's threading layer (Blender's TBB inside Blender) starts on this thread, as
     # it did when the first frame compiled the kernels; the thread's kernels join it.
     mc_backend.threads()
@@ -94,6 +116,122 @@ def prepare(
             f"compiled the numba kernels in {seconds:.1f} s; later runs load them from "
             f"{mc_backend.cache_location()}"
         )
+
+
+def start_background(
+    requested: str,
+    methods: Sequence[str],
+    log: Callable[[str], None] | None = None,
+    pixels: int | None = None,
+) -> bool:
+    """Start compiling the kernels into the disk cache in a low-priority process of their
+    own (``compile_kernels.py``); whether one started.
+
+    ``pixels``: the job's frame size (H·W), whose kernels the process compiles
+    first (:func:`prepare` waits for those only); None: all, in their order.
+    Nothing starts for NumPy or methods that do not sample, when the kernels are
+    prepared in this process, when numba is not installed or the cache is complete
+    already (``core.mc.backend.kernels_cached``; numba is not imported here), when
+    this process started one before, or with ``CVSSS_BACKGROUND_COMPILE=0``. ``log``
+    is told that it started. Safe beside Blender's render: no LLVM in this process.
+    Never raises: where it cannot start, the first frame compiles as before.
+    """
+    try:
+        return _start(requested, methods, log, pixels)
+    except Exception as exc:  # an optimisation: it must never stop a render
+        logging.getLogger("cvsss").info("cvsss: no background compile: %s", exc)
+        return False
+
+
+def _start(requested, methods, log, pixels) -> bool:
+    if os.environ.get("CVSSS_BACKGROUND_COMPILE", "1") == "0" or _background:
+        return False
+    if requested == "numpy" or "ended" in _state:
+        return False
+    if not any(METHODS[name].monte_carlo for name in methods):
+        return False
+    # Without importing numba (Blender's start-up): installed, and not cached yet.
+    if importlib.util.find_spec("numba") is None or mc_backend.kernels_cached():
+        return False
+    package = __name__.rsplit(".", 2)[0]  # e.g. bl_ext.user_default.cvsss
+    root = Path(__file__).resolve().parents[1]
+    mc_backend.cache_location()  # sets NUMBA_CACHE_DIR where numba's default is read-only
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
+    flags = 0
+    if sys.platform == "win32":  # no console window; below the UI's priority
+        flags = subprocess.CREATE_NO_WINDOW | subprocess.BELOW_NORMAL_PRIORITY_CLASS
+    size = [] if pixels is None else [str(int(pixels))]
+    process = subprocess.Popen(
+        [sys.executable, str(CHILD), str(root), package, *size],
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        creationflags=flags,
+    )
+    ready, report = threading.Event(), {}
+    _background.update(process=process, ready=ready, report=report)
+    threading.Thread(
+        target=_read_reports,
+        args=(process, ready, report),
+        name="cvsss-compile-reports",
+        daemon=True,
+    ).start()
+    if log is not None:
+        log("compiling the numba kernels in a background process (first use on this machine)")
+    return True
+
+
+def _read_reports(process: subprocess.Popen, ready: threading.Event, report: dict) -> None:
+    """The child's first report (``ready``, ``seconds`` or ``error``) into ``report``, then
+    the rest of its output read and dropped, so that it never blocks on the pipe."""
+    for raw in process.stdout:
+        try:
+            line = json.loads(raw)
+        except ValueError:
+            continue
+        if not ready.is_set() and isinstance(line, dict):
+            report.update(line)
+            ready.set()
+    code = process.wait()
+    if not ready.is_set():
+        report["error"] = f"it exited with code {code} and no report"
+        ready.set()
+
+
+def stop_background() -> None:
+    """End a background compile that is still running (the add-on is being disabled)."""
+    process = _background.get("process")
+    if process is not None and process.poll() is None:
+        process.terminate()
+        process.wait()
+        # The next start may begin again (numba replaces cache files whole).
+        _background.clear()
+
+
+def _wait_for_background(log: Callable[[str], None] | None) -> None:
+    """Wait until the background compile, if one runs, has what the job needs (or ended),
+    and report how that went."""
+    ready = _background.get("ready")
+    if ready is None or _background.get("waited"):
+        return
+    _background["waited"] = True
+    if not ready.wait(NOTICE) and log is not None:
+        log("waiting for the numba kernels' compile in the background (first use)…")
+    ready.wait()
+    report = _background["report"]
+    if log is None:
+        return
+    if "error" in report:
+        log(
+            f"the background compile of the numba kernels failed ({report['error']}); "
+            "compiling them here"
+        )
+    else:
+        seconds = report.get("ready", report.get("seconds", 0.0))
+        if seconds > NOTICE:
+            log(f"the numba kernels were compiled in the background in {seconds:.1f} s")
 
 
 def _compile(pixels: int | None) -> None:

@@ -1,11 +1,18 @@
 """Shared test configuration: fixed seeds, the bpy marker lane, and the kernels' preparation
 state (``no_compile``, ``slow_compile``)."""
 
+import os
 import threading
 import time
 
 import numpy as np
 import pytest
+
+# The numba kernels' background compile (sss_addon.precompile.start_background) is off
+# in every test and in the processes they start, unless a test turns it on: when the
+# cache is not stamped complete yet, a job would otherwise start one and log two more
+# lines depending on which tests ran before it.
+os.environ["CVSSS_BACKGROUND_COMPILE"] = "0"
 
 
 @pytest.fixture
@@ -17,14 +24,19 @@ def rng():
 # -- the numba kernels' preparation (sss_addon.precompile) ---------------------------
 @pytest.fixture
 def no_compile():
-    """No kernels prepared in this process yet (the module's state is per process)."""
+    """No kernels prepared in this process yet, no background compile started (the module's
+    state is per process)."""
     from cvsss.sss_addon import precompile
 
-    saved = dict(precompile._state)
+    saved, background = dict(precompile._state), dict(precompile._background)
     precompile._state.clear()
+    precompile._background.clear()
     yield precompile._state
+    precompile.stop_background()
     precompile._state.clear()
     precompile._state.update(saved)
+    precompile._background.clear()
+    precompile._background.update(background)
 
 
 @pytest.fixture

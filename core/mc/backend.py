@@ -21,16 +21,22 @@ Compiled code is cached on disk (numba ``cache=True``). numba writes its
 cache next to the module; when that directory is read-only (an installed
 extension, a system site-packages) ``NUMBA_CACHE_DIR`` is pointed at a
 per-user cache directory first (:func:`cache_dir`), unless the user set it.
+A warm-up of every kernel leaves a stamp there (:func:`kernels_cached`), so
+that a later process can tell, without importing numba, that the cache is
+complete for this source, Python and numba.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
+from ..io.atomic import write_text
 from ..params import BACKENDS
 
 log = logging.getLogger("cvsss")
@@ -55,6 +61,34 @@ def cache_location() -> Path:
     _prepare_cache()
     folder = os.environ.get("NUMBA_CACHE_DIR")
     return Path(folder) if folder else Path(__file__).resolve().parent / "__pycache__"
+
+
+#: The stamp a complete warm-up writes into :func:`cache_location`.
+STAMP = "cvsss-kernels.json"
+
+
+def _stamp() -> dict:
+    """What the cache's entries depend on besides the machine: the kernels' source file
+    (numba's own staleness test: its modification time and size), Python and numba."""
+    source = Path(__file__).with_name("estimator_numba.py").stat()
+    return {
+        "source": [source.st_mtime_ns, source.st_size],
+        "python": sys.version,
+        "numba": metadata.version("numba"),
+    }
+
+
+def kernels_cached() -> bool:
+    """Whether every kernel was compiled into (or loaded from) :func:`cache_location` for
+    this source, Python and numba: a warm-up of all of them left its stamp there.
+
+    Does not import numba. False when numba is not installed. A cache that numba
+    nevertheless finds stale (another CPU, say) is compiled again by the next warm-up.
+    """
+    try:
+        return json.loads((cache_location() / STAMP).read_text()) == _stamp()
+    except (OSError, ValueError, metadata.PackageNotFoundError):
+        return False
 
 
 def _prepare_cache() -> None:
@@ -144,7 +178,8 @@ def warm_up(pixels: int | None = None) -> float:
     """Compile (or load from the disk cache) the numba kernels; seconds it took.
 
     ``pixels``: compile only the sampling kernel's build for frames of that many
-    pixels (``estimator_numba.warm_up``); None: both builds.
+    pixels (``estimator_numba.warm_up``); None: both builds, and the cache is then
+    stamped complete (:func:`kernels_cached`).
 
     Raises ImportError when numba is unavailable.
     """
@@ -155,4 +190,10 @@ def warm_up(pixels: int | None = None) -> float:
 
     t0 = time.perf_counter()
     estimator_numba.warm_up(pixels)
-    return time.perf_counter() - t0
+    seconds = time.perf_counter() - t0
+    if pixels is None:  # every kernel: the cache is complete (see kernels_cached)
+        try:
+            write_text(cache_location() / STAMP, json.dumps(_stamp()))
+        except OSError as exc:  # a read-only cache still serves; a later run compiles
+            log.info("cvsss: could not stamp the numba cache: %s", exc)
+    return seconds

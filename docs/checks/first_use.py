@@ -1,19 +1,28 @@
-"""The first render on a machine: the numba kernels prepared before the first post-process
-or compiled inside it.
+"""The first render on a machine: the numba kernels compiled in the background while Blender
+renders, before the first post-process, or inside it.
 
 Renders the flash demo scene (``demo_blend``) through ``render_sequence`` (what
 ``cvsss render`` and the Render Sequence operator run) with ``as_ccv`` on the
 numba backend, each time in a fresh process with an empty ``NUMBA_CACHE_DIR``,
-so that every run compiles the kernels as a fresh install does. ``prepare``:
-as shipped, ``sss_addon.precompile.prepare`` compiles the kernels for
-the frame size before the first post-process and logs it; ``inline``: that step
-disabled, so the first post-process compiles what it calls, silently, as
-before. Runs alternate between the two (a slow spell of a shared machine hits
-both). Prints each run's wall time of the whole ``render_sequence`` call and of
-its first frame, and the lines the job logs about the compile. Run from the
-repo root:
+so that every run compiles the kernels as a fresh install does. Variants:
 
-    .venv/bin/python docs/checks/first_use.py [--res 320x180] [--samples 64] [--frames 2] [--rounds 1]
+``background``
+    as shipped: the job starts ``sss_addon.precompile.start_background`` (a
+    low-priority process compiles every kernel while Cycles renders the first
+    frame) and ``prepare`` waits for it before the first post-process;
+``foreground``
+    ``CVSSS_BACKGROUND_COMPILE=0``: ``prepare`` compiles the kernels the frame
+    size needs before the first post-process, in this process;
+``inline``
+    neither: the first post-process compiles what it calls, silently.
+
+Runs alternate between the variants (a slow spell of a shared machine hits
+all). ``--threads N`` renders with N Cycles threads (a stand-in for a GPU
+render that leaves CPU cores free; default: all). Prints each run's wall time
+of the whole ``render_sequence`` call and of its first frame, and the lines
+the job logs about the compile. Run from the repo root:
+
+    .venv/bin/python docs/checks/first_use.py [--res 320x180] [--samples 64] [--frames 2] [--rounds 1] [--threads 0]
 """
 
 import argparse
@@ -25,8 +34,10 @@ import tempfile
 import time
 from pathlib import Path
 
+VARIANTS = ("background", "foreground", "inline")
 
-def child(variant: str, res: str, samples: int, frames: int, out: Path) -> None:
+
+def child(variant: str, res: str, samples: int, frames: int, threads: int, out: Path) -> None:
     import bpy
 
     import cvsss
@@ -44,6 +55,8 @@ def child(variant: str, res: str, samples: int, frames: int, out: Path) -> None:
     scene.render.resolution_x, scene.render.resolution_y = w, h
     scene.render.resolution_percentage = 100
     scene.cycles.samples = samples
+    if threads:
+        scene.render.threads_mode, scene.render.threads = "FIXED", threads
     if variant == "inline":
         precompile.prepare = lambda requested, methods, pixels, log: None
     lines: list[tuple[float, str]] = []
@@ -76,22 +89,26 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1)
-    ap.add_argument("--child", choices=("prepare", "inline"), help=argparse.SUPPRESS)
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--child", choices=VARIANTS, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        child(a.child, a.res, a.samples, a.frames, a.out)
+        child(a.child, a.res, a.samples, a.frames, a.threads, a.out)
         return
     print(
-        f"flash demo, {a.res}, {a.samples} Cycles samples, {a.frames} frame(s), " "as_ccv on numba"
+        f"flash demo, {a.res}, {a.samples} Cycles samples, {a.frames} frame(s), "
+        f"{a.threads or 'all'} Cycles thread(s), as_ccv on numba"
     )
     for _ in range(a.rounds):
-        for variant in ("inline", "prepare"):
+        for variant in VARIANTS:
             with tempfile.TemporaryDirectory() as tmp:
                 env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
+                env["CVSSS_BACKGROUND_COMPILE"] = "1" if variant == "background" else "0"
                 run = subprocess.run(
                     [sys.executable, __file__, "--child", variant, "--res", a.res,
                      "--samples", str(a.samples), "--frames", str(a.frames),
+                     "--threads", str(a.threads),
                      "--out", str(Path(tmp) / "out")],
                     capture_output=True, text=True, env=env, check=False,
                 )  # fmt: skip
@@ -100,7 +117,7 @@ def main() -> None:
                 line = next(x for x in run.stdout.splitlines() if x.startswith("REPORT "))
                 report = json.loads(line.removeprefix("REPORT "))
                 print(
-                    f"  {variant:>7}: whole call {report['wall']:6.1f} s, first frame done at "
+                    f"  {variant:>10}: whole call {report['wall']:6.1f} s, first frame done at "
                     f"{report['first']:6.1f} s  {' '.join(report['compiled'])}"
                 )
 

@@ -81,6 +81,7 @@ from .passes import (
     SceneSetup,
     finish_pass_file,
     internal_render,
+    output_size,
     pass_sidecar,
     rendering_internally,
 )
@@ -359,6 +360,11 @@ class Session:
         )
         for note in self.notes:
             _log("note: " + note)
+        # The numba kernels compile in a process of their own while Blender renders, when
+        # they are not cached yet (the add-on's registration in the UI started it already).
+        precompile.start_background(
+            self.job.params.backend, self.job.methods, _log, math.prod(output_size(scene))
+        )
 
     # -- history ---------------------------------------------------------------------------
     def _key(self) -> str:

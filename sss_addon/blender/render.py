@@ -57,6 +57,7 @@ from .passes import (
     RenderError,
     engine_identifier,
     frame_done,
+    output_size,
     pass_path,
     render_frame,
     render_view_layer,
@@ -519,12 +520,28 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
     to :func:`run_of` the job.
     """
     run = run or run_of(job)
+    if _renders_first(job, run):
+        # A process of its own compiles the numba kernels while Blender renders (when
+        # they are not cached yet); the first post-process waits for it.
+        precompile.start_background(
+            job.params.backend, run.spec.order, job.log, math.prod(output_size(job.scene))
+        )
     if job.warmup_frames and run.fresh:
         warm_up(job, run)
     for step in iter_passes(job, needed=run.pending):
         _post_frame(job, run, step)
         yield step
     run.finish()
+
+
+def _renders_first(job: Job, run: SequenceRun) -> bool:
+    """Whether Blender renders passes before the job's first post-process here."""
+    first = next((frame for frame in job.frames if run.pending(frame)), None)
+    if first is None or not job.processed_here or not job.render_passes:
+        return False
+    if job.warmup_frames and run.fresh:
+        return True
+    return job.overwrite or not frame_done(job.passes_dir, first, job.denoise_passes)
 
 
 def warm_up(job: Job, run: SequenceRun) -> None:

@@ -380,6 +380,43 @@ def test_blender_b_renders_a_blend_with_apply_on_render(
         assert np.abs(_image_pixels(farm) - _image_pixels(path)).max() <= 1 / 255 + 1e-6
 
 
+def test_installed_extension_compiles_the_kernels_beside_blenders_render(
+    scene, tmp_path, extension_zip, check_script, monkeypatch
+):
+    """The first render on a machine (an empty numba cache), with the extension installed
+    from its zip under Blender's package name: a process of its own starts compiling
+    before Blender renders, the first frame's post-process waits only for its frame
+    size's build and loads it from the cache (no compile in Blender's process), and the
+    process goes on to stamp the cache complete. About a minute: a real cold compile."""
+    scene.frame_end = scene.frame_start  # one frame
+    scene.render.filepath = str(tmp_path / "farm" / "f_")
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "1")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
+    report, stdout = check_script(
+        "native_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
+    )
+    assert report["render"] == ["FINISHED"]
+    background = report["background"]
+    assert background is not None, stdout[-3000:]
+    assert background["package"] == "bl_ext.cvsss_test.cvsss"
+    assert background["args"] == [background["package"], str(48 * 27)]
+    assert background["exit"] == 0 and background["stamped"]
+    # 48×27 frames take the serial build: loaded, not compiled, in Blender's process.
+    assert background["builds"] == {"pixel_sums": [0, 0], "pixel_sums_serial": [1, 0]}
+    # Started when the render began (render_init), before the frame was rendered; the
+    # post-process waited for it, then loaded.
+    lines = [ln.removeprefix("cvsss: ") for ln in stdout.splitlines() if ln.startswith("cvsss:")]
+    assert (
+        lines[1]
+        == "compiling the numba kernels in a background process (first use on this machine)"
+    )
+    assert lines[-3].startswith("the numba kernels were compiled in the background in "), lines
+    assert lines[-2].startswith("frame 1 as_ocv:"), lines
+    assert Path(tmp_path / "farm" / "f_0001.png").is_file()
+
+
 @pytest.mark.slow
 def test_eevee_passes_on_one_frame(scene, tmp_path):
     """The same path with EEVEE (software GL here: most of the time is shader compilation)."""

@@ -19,6 +19,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -610,6 +611,43 @@ def test_compiled_kernel_is_cached_on_disk():
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["hits"] >= 2 and out["misses"] == 0
+
+
+def test_a_full_warm_up_stamps_the_cache_for_this_source(tmp_path, monkeypatch):
+    """``kernels_cached()``: the stamp a warm-up of every kernel leaves in the cache folder,
+    held against the kernels' source file (as numba's own staleness test), Python and
+    numba; anything else, or no stamp, is not cached."""
+    backend.warm_up()
+    assert backend.kernels_cached()
+    stamp = json.loads((backend.cache_location() / backend.STAMP).read_text())
+    source = (Path(backend.__file__).parent / "estimator_numba.py").stat()
+    assert stamp == {
+        "source": [source.st_mtime_ns, source.st_size],
+        "python": sys.version,
+        "numba": numba.__version__,
+    }
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert not backend.kernels_cached()  # nothing there
+    for other, cached in [
+        (stamp, True),
+        ({**stamp, "source": [source.st_mtime_ns + 1, source.st_size]}, False),
+        ({**stamp, "numba": "0.0.1"}, False),
+        ({**stamp, "python": "2.7"}, False),
+    ]:
+        (tmp_path / backend.STAMP).write_text(json.dumps(other))
+        assert backend.kernels_cached() is cached
+    (tmp_path / backend.STAMP).write_text("{")
+    assert not backend.kernels_cached()
+
+
+def test_kernels_cached_does_not_import_numba():
+    code = (
+        "import sys; from cvsss.core.mc import backend; backend.kernels_cached(); "
+        "print('numba' in sys.modules)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["False"]
 
 
 @pytest.mark.parametrize(

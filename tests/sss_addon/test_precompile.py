@@ -10,6 +10,7 @@ import re
 import time
 
 import numpy as np
+import pytest
 
 from cvsss.core.mc import backend as mc_backend
 from cvsss.core.mc import estimator_numba
@@ -17,6 +18,7 @@ from cvsss.sss_addon import precompile
 
 ANNOUNCE = "compiling the numba kernels (first use on this machine, about a minute)…"
 MC = ("none", "as_ccv")  # a job with one method that samples
+STARTED = "compiling the numba kernels in a background process (first use on this machine)"
 REPORT = re.compile(r"compiled the numba kernels in ([\d.]+) s; later runs load them from (.+)$")
 
 
@@ -90,3 +92,134 @@ def test_real_kernels_are_prepared(no_compile, monkeypatch):
         scene_frame("flash", 1, 48, 32)
     )
     assert result.spp > 0 and np.isfinite(result.composite).all()
+
+
+# -- the background compile (a process of its own) ------------------------------------
+# The real compile_kernels.py runs in tests/blender/test_addon_cli.py (it compiles into an
+# empty cache while Blender renders); here stand-in scripts play the child, so that each
+# way it can end is seen in a second.
+def _child(tmp_path, monkeypatch, body: str):
+    script = tmp_path / "child.py"
+    script.write_text("import json, sys, time\n" + body + "\n")
+    monkeypatch.setattr(precompile, "CHILD", script)
+    monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "1")
+    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: False)
+
+
+def test_background_compile_starts_only_where_there_is_work(no_compile, tmp_path, monkeypatch):
+    _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
+    assert not precompile.start_background("numpy", MC)
+    assert not precompile.start_background("numba", ("none", "separable"))
+    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: True)
+    assert not precompile.start_background("numba", MC)
+    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: False)
+    monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "0")
+    assert not precompile.start_background("numba", MC)
+    assert not precompile._background
+    monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "1")
+    lines = []
+    assert precompile.start_background("auto", MC, lines.append)
+    assert lines == [STARTED]
+    assert not precompile.start_background("auto", MC)  # once per process
+    assert precompile._background["process"].wait(30) == 0
+
+
+def test_no_background_compile_once_the_kernels_are_prepared(
+    no_compile, slow_compile, tmp_path, monkeypatch
+):
+    _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
+    slow_compile(0.0)
+    precompile.prepare("numba", MC, 64, None)
+    assert not precompile.start_background("numba", MC) and not precompile._background
+
+
+def test_prepare_waits_for_the_background_compile_then_loads(no_compile, tmp_path, monkeypatch):
+    """The first frame's prepare waits for the child, says so, and only then warms up in
+    this process (which loads what the child compiled)."""
+    done = tmp_path / "child-done"
+    _child(
+        tmp_path,
+        monkeypatch,
+        f'time.sleep(0.6); open({str(done)!r}, "w").close(); print(json.dumps({{"seconds": 41.5}}))',
+    )
+    monkeypatch.setattr(precompile, "NOTICE", 0.1)
+    seen = []
+    monkeypatch.setattr(
+        mc_backend, "warm_up", lambda pixels=None: seen.append(done.exists()) or 0.0
+    )
+    lines = []
+    assert precompile.start_background("numba", MC, lines.append)
+    precompile.prepare("numba", MC, 64, lines.append)
+    assert seen == [True]  # after the child ended
+    assert lines == [
+        STARTED,
+        "waiting for the numba kernels' compile in the background (first use)…",
+        "the numba kernels were compiled in the background in 41.5 s",
+    ]
+
+
+@pytest.mark.parametrize(
+    "body, why",
+    [
+        (
+            'print(json.dumps({"error": "ImportError: no numba here"}))',
+            "ImportError: no numba here",
+        ),
+        ("sys.exit(3)", "it exited with code 3 and no report"),
+    ],
+)
+def test_a_failed_background_compile_is_reported_and_compiled_here(
+    no_compile, slow_compile, tmp_path, monkeypatch, body, why
+):
+    _child(tmp_path, monkeypatch, body)
+    calls = slow_compile(0.0)
+    lines = []
+    assert precompile.start_background("numba", MC)
+    precompile.prepare("numba", MC, 64, lines.append)
+    assert lines == [
+        f"the background compile of the numba kernels failed ({why}); compiling them here"
+    ]
+    assert calls == [(64, "cvsss-compile")]
+
+
+def test_stop_background_ends_a_running_compile(no_compile, tmp_path, monkeypatch):
+    _child(tmp_path, monkeypatch, "time.sleep(120)")
+    assert precompile.start_background("numba", MC)
+    process = precompile._background["process"]
+    began = time.perf_counter()
+    precompile.stop_background()
+    assert process.poll() is not None and time.perf_counter() - began < 10
+    assert not precompile._background  # a later start may begin again
+
+
+def test_prepare_waits_only_for_the_kernels_of_its_frame_size(no_compile, tmp_path, monkeypatch):
+    """With the job's frame size the child reports ``ready`` once that size's kernels are
+    compiled; the job goes on while it compiles the rest."""
+    _child(
+        tmp_path,
+        monkeypatch,
+        'print(json.dumps({"ready": 30.5}), flush=True); time.sleep(60); '
+        'print(json.dumps({"seconds": 44.0}))',
+    )
+    monkeypatch.setattr(mc_backend, "warm_up", lambda pixels=None: 0.0)
+    lines = []
+    assert precompile.start_background("numba", MC, None, pixels=640 * 360)
+    assert precompile._background["process"].args[-1] == str(640 * 360)
+    began = time.perf_counter()
+    precompile.prepare("numba", MC, 640 * 360, lines.append)
+    assert time.perf_counter() - began < 30
+    assert precompile._background["process"].poll() is None  # still compiling the rest
+    assert lines == ["the numba kernels were compiled in the background in 30.5 s"]
+
+
+def test_a_background_compile_that_cannot_start_leaves_the_job_to_compile(
+    no_compile, slow_compile, tmp_path, monkeypatch
+):
+    """No Python to run (say): nothing started, nothing raised, the frame compiles here."""
+    _child(tmp_path, monkeypatch, "")
+    monkeypatch.setattr(precompile.sys, "executable", str(tmp_path / "no-such-python"))
+    calls = slow_compile(0.0)
+    assert not precompile.start_background("numba", MC)
+    assert not precompile._background
+    precompile.prepare("numba", MC, 64, None)
+    assert calls == [(64, "cvsss-compile")]
