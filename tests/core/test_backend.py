@@ -482,6 +482,32 @@ def test_thread_count_does_not_change_the_result(monkeypatch):
     assert np.array_equal(serial.variance, many.variance)
 
 
+def test_tasks_dealt_over_any_number_of_threads_give_the_same_bits(monkeypatch):
+    """The parallel build deals its tasks out over ``threads`` (iteration t runs task
+    (t % per)·threads + t // per): every task runs once, whatever the count, also where
+    it does not divide the tasks or exceeds them. Every pixel active, so the kernel
+    writes each row of an uninitialised estimate: a task left out shows as garbage."""
+    from cvsss.core.mc import estimator_numba as en
+
+    frame = scene_frame("flash", 3, 160, 90)
+    profile = frame_profile(frame, SSSParams())
+    geom = prepare(frame, profile, surface_distance=True)
+    counts = np.random.default_rng(3).integers(1, 40, geom.size)
+    tasks = -(-geom.size // en.PIXELS_PER_TASK)
+    assert tasks % 3 and tasks % 7 and tasks < 1000, tasks
+    kw = dict(frame=3, seed=1, depth_slope=2.0, variance=True, backend="numba")
+    runs = {}
+    for threads in (1, 2, 3, 7, 1000):
+        monkeypatch.setattr(
+            en, "kernel", lambda n, p=0, k=threads: lambda *a: en.pixel_sums(*a[:-1], k)
+        )
+        runs[threads] = estimate_distant(geom, frame.lighting, frame.depth, profile, counts, **kw)
+    for threads, run in runs.items():
+        assert np.array_equal(run.distant, runs[1].distant), threads
+        assert np.array_equal(run.variance, runs[1].variance), threads
+        assert run.fallback == runs[1].fallback, threads
+
+
 def test_the_kernel_build_follows_the_work_of_pixels_and_samples():
     """Threads for a call's work, counting each pixel as PIXEL_SAMPLES samples."""
     from cvsss.core.mc import estimator_numba as en
