@@ -29,8 +29,9 @@ runs ``compile_kernels.py`` on Blender's Python at low priority when the cache
 is not complete (``core.mc.backend.kernels_cached``). The add-on starts it
 when it registers in Blender's UI (installed, updated, or Blender opened), so
 that the minute passes while the user works, and every render job starts it
-before Blender renders the first frame. :func:`prepare` then waits for that
-process, if it is still running, and loads what it compiled.
+before Blender renders the first frame, with its frame size, whose build the
+process compiles first. :func:`prepare` then waits until the process has what
+the job needs (or has failed), and loads it from the cache.
 ``CVSSS_BACKGROUND_COMPILE=0`` turns it off.
 """
 

@@ -14,7 +14,11 @@ so that every run compiles the kernels as a fresh install does. Variants:
     ``CVSSS_BACKGROUND_COMPILE=0``: ``prepare`` compiles the kernels the frame
     size needs before the first post-process, in this process;
 ``inline``
-    neither: the first post-process compiles what it calls, silently.
+    neither: the first post-process compiles what it calls, silently;
+``loaded`` (with ``--idle S``)
+    the UI's case: the background compile starts as when the add-on
+    registers in Blender's UI (every kernel), S seconds pass (the user at
+    work), then the job runs; only the job is timed.
 
 Runs alternate between the variants (a slow spell of a shared machine hits
 all). ``--threads N`` renders with N Cycles threads (a stand-in for a GPU
@@ -22,7 +26,7 @@ render that leaves CPU cores free; default: all). Prints each run's wall time
 of the whole ``render_sequence`` call and of its first frame, and the lines
 the job logs about the compile. Run from the repo root:
 
-    .venv/bin/python docs/checks/first_use.py [--res 320x180] [--samples 64] [--frames 2] [--rounds 1] [--threads 0]
+    .venv/bin/python docs/checks/first_use.py [--res 320x180] [--samples 64] [--frames 2] [--rounds 1] [--threads 0] [--idle 0]
 """
 
 import argparse
@@ -37,14 +41,20 @@ from pathlib import Path
 VARIANTS = ("background", "foreground", "inline")
 
 
-def child(variant: str, res: str, samples: int, frames: int, threads: int, out: Path) -> None:
+def child(
+    variant: str, res: str, samples: int, frames: int, threads: int, idle: float, out: Path
+) -> None:
     import bpy
 
     import cvsss
+    from cvsss.core.methods import METHODS
     from cvsss.sss_addon import precompile
     from cvsss.sss_addon.blender.render import render_sequence
 
     cvsss.register()
+    if variant == "loaded":  # what register() does in the UI (bpy here is background)
+        precompile.start_background("auto", tuple(METHODS))
+        time.sleep(idle)
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -90,25 +100,27 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--threads", type=int, default=0)
-    ap.add_argument("--child", choices=VARIANTS, help=argparse.SUPPRESS)
+    ap.add_argument("--idle", type=float, default=0.0)
+    ap.add_argument("--child", choices=(*VARIANTS, "loaded"), help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        child(a.child, a.res, a.samples, a.frames, a.threads, a.out)
+        child(a.child, a.res, a.samples, a.frames, a.threads, a.idle, a.out)
         return
     print(
         f"flash demo, {a.res}, {a.samples} Cycles samples, {a.frames} frame(s), "
         f"{a.threads or 'all'} Cycles thread(s), as_ccv on numba"
     )
     for _ in range(a.rounds):
-        for variant in VARIANTS:
+        for variant in (*VARIANTS, "loaded") if a.idle else VARIANTS:
             with tempfile.TemporaryDirectory() as tmp:
                 env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
-                env["CVSSS_BACKGROUND_COMPILE"] = "1" if variant == "background" else "0"
+                background = variant in ("background", "loaded")
+                env["CVSSS_BACKGROUND_COMPILE"] = "1" if background else "0"
                 run = subprocess.run(
                     [sys.executable, __file__, "--child", variant, "--res", a.res,
                      "--samples", str(a.samples), "--frames", str(a.frames),
-                     "--threads", str(a.threads),
+                     "--threads", str(a.threads), "--idle", str(a.idle),
                      "--out", str(Path(tmp) / "out")],
                     capture_output=True, text=True, env=env, check=False,
                 )  # fmt: skip
