@@ -32,19 +32,26 @@ def _console_log(on: bool) -> None:
             logger.removeHandler(handler)
 
 
-def register():
-    import bpy
-
+def _compile_on_load(background: bool) -> bool:
+    """In Blender's UI (installed, updated or Blender opened) start compiling every numba
+    kernel in a process of their own, so that it happens while the user works instead
+    of at the first render (``precompile.start_background``); whether it started.
+    ``background``: ``bpy.app.background`` (a render job starts its own)."""
+    if background:
+        return False
     from ..core.methods import METHODS
     from . import precompile
+
+    return precompile.start_background("auto", tuple(METHODS))
+
+
+def register():
+    import bpy
 
     _console_log(True)
     for module in _modules():
         module.register()
-    if not bpy.app.background:
-        # Installed, updated or Blender opened: the numba kernels compile in a process
-        # of their own while the user works, instead of at the first render.
-        precompile.start_background("auto", tuple(METHODS))
+    _compile_on_load(bpy.app.background)
 
 
 def unregister():

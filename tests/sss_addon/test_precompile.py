@@ -8,6 +8,7 @@ disk cache) runs in :func:`test_real_kernels_are_prepared`.
 
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -223,3 +224,19 @@ def test_a_background_compile_that_cannot_start_leaves_the_job_to_compile(
     assert not precompile._background
     precompile.prepare("numba", MC, 64, None)
     assert calls == [(64, "cvsss-compile")]
+
+
+def test_the_add_on_starts_every_kernel_when_it_loads_in_the_ui_only(
+    no_compile, tmp_path, monkeypatch
+):
+    """``register()``'s step: in Blender's UI the compile of every kernel starts (no frame
+    size); headless (``blender -b``, the bpy module) the render job starts its own."""
+    from cvsss import sss_addon
+
+    _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
+    assert not sss_addon._compile_on_load(background=True)
+    assert not precompile._background
+    assert sss_addon._compile_on_load(background=False)
+    process = precompile._background["process"]
+    assert process.args[2:] == [str(Path(sss_addon.__file__).resolve().parents[1]), "cvsss"]
+    assert process.wait(30) == 0
