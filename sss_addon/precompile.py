@@ -70,11 +70,15 @@ def prepared(requested: str, methods: Sequence[str]) -> bool:
     """Whether frames of ``methods`` on backend ``requested`` can be processed without
     :func:`prepare` compiling first: NumPy, no method that samples (``none``,
     ``separable``), or the kernels already prepared in this process."""
+    return _nothing_to_prepare(requested, methods) or not mc_backend.compiled(requested)
+
+
+def _nothing_to_prepare(requested: str, methods: Sequence[str]) -> bool:
+    """NumPy, no method that samples, or the kernels prepared in this process already
+    (decided without importing numba)."""
     if requested == "numpy" or "ended" in _state:
         return True
-    if not any(METHODS[name].monte_carlo for name in methods):
-        return True
-    return not mc_backend.compiled(requested)
+    return not any(METHODS[name].monte_carlo for name in methods)
 
 
 def prepare(
@@ -147,16 +151,15 @@ def start_background(
 def _start(requested, methods, log, pixels) -> bool:
     if os.environ.get("CVSSS_BACKGROUND_COMPILE", "1") == "0" or _background:
         return False
-    if requested == "numpy" or "ended" in _state:
-        return False
-    if not any(METHODS[name].monte_carlo for name in methods):
+    if _nothing_to_prepare(requested, methods):
         return False
     # Without importing numba (Blender's start-up): installed, and not cached yet.
+    # kernels_cached() has pointed NUMBA_CACHE_DIR, which the child inherits, at a
+    # writable folder where numba's default one is read-only.
     if importlib.util.find_spec("numba") is None or mc_backend.kernels_cached():
         return False
     package = __name__.rsplit(".", 2)[0]  # e.g. bl_ext.user_default.cvsss
     root = Path(__file__).resolve().parents[1]
-    mc_backend.cache_location()  # sets NUMBA_CACHE_DIR where numba's default is read-only
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
     flags = 0
@@ -213,11 +216,11 @@ def stop_background() -> None:
 
 def _wait_for_background(log: Callable[[str], None] | None) -> None:
     """Wait until the background compile, if one runs, has what the job needs (or ended),
-    and report how that went."""
+    and report how that went. Once per process: :func:`prepare` calls it only while the
+    kernels are not prepared, and prepares them right after."""
     ready = _background.get("ready")
-    if ready is None or _background.get("waited"):
+    if ready is None:
         return
-    _background["waited"] = True
     if not ready.wait(NOTICE) and log is not None:
         log("waiting for the numba kernels' compile in the background (first use)…")
     ready.wait()
