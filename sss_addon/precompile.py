@@ -156,7 +156,7 @@ def _start(requested, methods, log, pixels) -> bool:
     # Without importing numba (Blender's start-up): installed, and not cached yet.
     # kernels_cached() has pointed NUMBA_CACHE_DIR, which the child inherits, at a
     # writable folder where numba's default one is read-only.
-    if importlib.util.find_spec("numba") is None or mc_backend.kernels_cached():
+    if not _installed("numba") or mc_backend.kernels_cached():
         return False
     package = __name__.rsplit(".", 2)[0]  # e.g. bl_ext.user_default.cvsss
     root = Path(__file__).resolve().parents[1]
@@ -185,6 +185,15 @@ def _start(requested, methods, log, pixels) -> bool:
     if log is not None:
         log("compiling the numba kernels in a background process (first use on this machine)")
     return True
+
+
+def _installed(name: str) -> bool:
+    """Whether module ``name`` can be found, without importing it (False where its
+    platform has no wheel, as Windows on ARM has none of numba's)."""
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):  # a broken install, or an import hook refusing it
+        return False
 
 
 def _read_reports(process: subprocess.Popen, ready: threading.Event, report: dict) -> None:

@@ -5,7 +5,11 @@ BLENDER_USER_RESOURCES must be set before bpy is imported and the installed
 add-on (``bl_ext.cvsss_test.cvsss``) must not meet the ``cvsss`` package the
 other tests register. Prints one line ``REPORT <json>``.
 
-Usage: python extension_check.py <zip> <work folder>
+With ``--no-numba`` numba and llvmlite cannot be imported (an import hook refuses
+them, as if the platform had no wheel of them: the windows-arm64 zip), and the
+background compile is left on, so that the report shows what the add-on decides.
+
+Usage: python extension_check.py <zip> <work folder> [--no-numba]
 """
 
 import json
@@ -45,8 +49,30 @@ def group_state(group) -> dict:
     return out
 
 
-def main(zip_path: str, work: str) -> None:
+class _Refuse:
+    """An import hook: the modules ``names`` (and their submodules) are not installed."""
+
+    def __init__(self, names):
+        self.names = set(names)
+
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in self.names:
+            raise ModuleNotFoundError(f"No module named {name!r} (refused by extension_check)")
+        return None
+
+
+def main(zip_path: str, work: str, numba: bool = True) -> None:
     os.environ["BLENDER_USER_RESOURCES"] = os.path.join(work, "user")  # before bpy
+    records = []
+    if not numba:
+        sys.meta_path.insert(0, _Refuse(("numba", "llvmlite")))
+        os.environ["CVSSS_BACKGROUND_COMPILE"] = "1"  # the add-on's own decision, not ours
+        import logging
+
+        handler = logging.Handler()
+        handler.emit = lambda r: records.append([r.levelname, r.getMessage()])
+        logging.getLogger("cvsss").addHandler(handler)
+        logging.getLogger("cvsss").setLevel(logging.INFO)
     import bpy
 
     # isort: split
@@ -118,6 +144,8 @@ def main(zip_path: str, work: str) -> None:
     )
     report["numba_file"] = getattr(sys.modules.get("numba"), "__file__", None)
     report["llvmlite_file"] = getattr(sys.modules.get("llvmlite"), "__file__", None)
+    report["background_compile"] = bool(sys.modules[MOD + ".sss_addon.precompile"]._background)
+    report["log"] = records
 
     addon_utils.disable(MOD, default_set=True)
     report["enabled_after"] = MOD in prefs.addons
@@ -143,4 +171,4 @@ def main(zip_path: str, work: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2])
+    main(sys.argv[1], sys.argv[2], numba="--no-numba" not in sys.argv[3:])

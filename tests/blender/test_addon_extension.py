@@ -63,6 +63,34 @@ def test_zip_content(extension_zip):
         assert not [n for n in names if re.search(bad, n)], bad
 
 
+def _addon_files(path: Path) -> dict[str, bytes]:
+    """A zip's files besides its wheels and its (generated) manifest."""
+    with zipfile.ZipFile(path) as z:
+        return {
+            n: z.read(n)
+            for n in z.namelist()
+            if not n.startswith("wheels/") and n != "blender_manifest.toml"
+        }
+
+
+def test_windows_arm64_zip_carries_openexr_only(extension_zip):
+    """numba 0.60 and llvmlite 0.43 publish no Windows-on-ARM wheel: that platform's zip
+    bundles OpenEXR alone (the add-on then runs NumPy, as the next tests check), and is
+    otherwise the same add-on as the Linux x64 zip, file for file."""
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    arm = extension_zip.with_name(f"cvsss-{manifest['version']}-windows_arm64.zip")
+    with zipfile.ZipFile(arm) as z:
+        wheels = sorted(n for n in z.namelist() if n.startswith("wheels/"))
+        built = tomllib.loads(z.read("blender_manifest.toml").decode())
+    assert wheels == ["wheels/openexr-3.5.3-cp311-cp311-win_arm64.whl"]
+    assert built["build"]["generated"] == {
+        "platforms": ["windows-arm64"],
+        "wheels": ["./wheels/openexr-3.5.3-cp311-cp311-win_arm64.whl"],
+    }
+    assert not [w for w in manifest["wheels"] if w.endswith("win_arm64.whl") and "openexr" not in w]
+    assert _addon_files(arm) == _addon_files(extension_zip)
+
+
 @pytest.fixture(scope="module")
 def installed(extension_zip, tmp_path_factory, check_script):
     """(extension_check.py's report, its work folder): run once, it renders."""
@@ -141,3 +169,35 @@ def test_installed_zip_runs_the_compiled_backend(installed):
     assert report["backend"].startswith("numba (0.60.0, ")
     assert report["kernel_signatures"] >= 1  # compiled and called (serial at this size)
     assert report["render"] == ["FINISHED"]
+
+
+@pytest.fixture(scope="module")
+def installed_without_numba(extension_zip, tmp_path_factory, check_script):
+    """extension_check.py with numba and llvmlite refused: (report, stdout)."""
+    work = tmp_path_factory.mktemp("installed_without_numba")
+    return check_script("extension_check.py", extension_zip, work, "--no-numba", cwd=work)
+
+
+def test_installed_zip_without_numba_runs_numpy(installed_without_numba):
+    """Where numba cannot be imported (the windows-arm64 zip has no wheel of it) the installed
+    add-on installs, renders through its operators on NumPy, says so (panel and log), starts
+    no background compile and unregisters cleanly."""
+    report, stdout = installed_without_numba
+    assert report["install"] == ["FINISHED"] and report["enabled"]
+    assert report["render"] == ["FINISHED"]
+    assert report["outputs"] == ["as_ccv", "metrics.csv", "passes"]
+    assert "SSS Sample Count" in report["images"]
+    assert report["backend"].startswith("NumPy (numba unavailable (ModuleNotFoundError")
+    assert report["numba_file"] is None and report["llvmlite_file"] is None
+    assert report["kernel_signatures"] == 0
+    # Asked "auto": the log says which backend runs and why, at INFO (not a warning).
+    ((level, message),) = (r for r in report["log"] if "Monte Carlo backend" in r[1])
+    assert level == "INFO" and "backend numpy (asked auto" in message
+    assert "NumPy fallback" in message
+    # The background compile is on in this run; with no numba it starts nothing.
+    assert not report["background_compile"]
+    assert "compiling the numba kernels" not in stdout
+    assert not [r for r in report["log"] if "no background compile" in r[1]]  # not even tried
+    assert not [r for r in report["log"] if r[0] in ("WARNING", "ERROR")]
+    assert not report["enabled_after"] and report["types_left"] == []
+    assert report["handlers_left"] == [] and report["uninstalled"]

@@ -6,6 +6,7 @@ messages (a cold compile takes most of a minute); the real one (loaded from the
 disk cache) runs in :func:`test_real_kernels_are_prepared`.
 """
 
+import logging
 import re
 import time
 from pathlib import Path
@@ -123,6 +124,35 @@ def test_background_compile_starts_only_where_there_is_work(no_compile, tmp_path
     assert lines == [STARTED]
     assert not precompile.start_background("auto", MC)  # once per process
     assert precompile._background["process"].wait(30) == 0
+
+
+def test_no_background_compile_where_numba_is_not_installed(no_compile, tmp_path, monkeypatch):
+    """The windows-arm64 zip has no numba wheel: nothing to compile, and nothing logged."""
+    _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
+
+    def absent(name, package=None):
+        return None
+
+    monkeypatch.setattr(precompile.importlib.util, "find_spec", absent)
+    assert not precompile.start_background("auto", MC) and not precompile._background
+
+    def refused(name, package=None):  # an import hook, or a broken install
+        raise ModuleNotFoundError(f"No module named {name!r}")
+
+    monkeypatch.setattr(precompile.importlib.util, "find_spec", refused)
+    logged = []
+    handler = logging.Handler()
+    handler.emit = logged.append
+    logger = logging.getLogger("cvsss")
+    level = logger.level
+    logger.setLevel(logging.INFO)  # start_background's own note is at INFO
+    logger.addHandler(handler)
+    try:
+        assert not precompile.start_background("auto", MC) and not precompile._background
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    assert logged == []
 
 
 def test_no_background_compile_once_the_kernels_are_prepared(
