@@ -126,7 +126,9 @@ def test_background_compile_starts_only_where_there_is_work(no_compile, tmp_path
     assert precompile._background["process"].wait(30) == 0
 
 
-def test_no_background_compile_where_numba_is_not_installed(no_compile, tmp_path, monkeypatch):
+def test_no_background_compile_where_numba_is_not_installed(
+    no_compile, tmp_path, monkeypatch, caplog
+):
     """The windows-arm64 zip has no numba wheel: nothing to compile, and nothing logged."""
     _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
 
@@ -140,19 +142,9 @@ def test_no_background_compile_where_numba_is_not_installed(no_compile, tmp_path
         raise ModuleNotFoundError(f"No module named {name!r}")
 
     monkeypatch.setattr(precompile.importlib.util, "find_spec", refused)
-    logged = []
-    handler = logging.Handler()
-    handler.emit = logged.append
-    logger = logging.getLogger("cvsss")
-    level = logger.level
-    logger.setLevel(logging.INFO)  # start_background's own note is at INFO
-    logger.addHandler(handler)
-    try:
+    with caplog.at_level(logging.INFO, logger="cvsss"):  # start_background's note is INFO
         assert not precompile.start_background("auto", MC) and not precompile._background
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
-    assert logged == []
+    assert caplog.records == []
 
 
 def test_no_background_compile_once_the_kernels_are_prepared(
