@@ -649,8 +649,10 @@ def _numpy_sums(
                 fill &= ~touching
             fill &= ~(zp - zq > np.float32(0.1) * zp)
             if fill.any():
-                # (3, n_fill) the filled samples' −(1 − β)·B_direct(p), times a weight below.
-                fill_light = np.repeat(fill_value[:, a:b], c, axis=1)[:, fill]
+                # The filled samples' pixels (indices into pix) and (3, n_fill) their
+                # −(1 − β)·B_direct(p), times a weight below.
+                fill_pix = np.take(local, np.flatnonzero(fill))
+                fill_light = np.take(fill_value, fill_pix, axis=1)
             else:
                 fill = None
         if touching is not None:
@@ -717,8 +719,8 @@ def _numpy_sums(
             dens *= scale
             diff *= dens
             if fill is not None:
-                planar = _pdf(profile, r, mat, pix, a, c)[:, fill]
-                g_s = np.repeat(pix.g_s[a:b], c)[fill]
+                planar = _pdf_at(profile, r[fill], pix, fill_pix)
+                g_s = np.take(pix.g_s, fill_pix)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     planar *= np.where(norm[fill] > 0, g_s / norm[fill], np.float32(0.0))
                 diff[:, fill] = fill_light * planar
@@ -938,6 +940,21 @@ def _disk_gain(dx, dy, dz, q, normal_cm, pix: Pixels, a: int, c, weighed) -> np.
     weighed = weighed & (total > 0)
     weighed &= l2 > 0
     return np.where(weighed, g, np.float32(1.0))
+
+
+def _pdf_at(profile: Profile, r: np.ndarray, pix: Pixels, at: np.ndarray) -> np.ndarray:
+    """(3, n) float32 density of every channel at r (n,), of the pixels ``at`` (indices into pix).
+
+    The same operations as :func:`_pdf`, for a few samples of scattered pixels.
+    """
+    if type(profile) is BurleyProfile:
+        return pdf_from_table(
+            r, np.take(pix.pscale, at, axis=1), np.take(pix.inv_d, at, axis=1), profile._pcols
+        )
+    dens = profile.pdf_channels(r, np.take(pix.mat, at))
+    if profile.pixel_weight_scale:
+        dens *= np.take(pix.ws, at, axis=1)
+    return dens
 
 
 def _pdf(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, a: int, c) -> np.ndarray:

@@ -9,12 +9,13 @@ machine hits both. Each module runs with its own default batch size. Prints ns
 per sample of the whole ``estimate_distant`` call (minimum, 25th percentile and
 median of the calls), and whether both give the same bits in each distance mode
 (``cycles``, ``surface``, ``planar``; with the variance and a hidden light of
-0.3 in the first). ``--profile dipole`` or ``artist`` puts that profile on every
+0.3 in the first). ``--timed`` picks the mode the calls time (default
+``cycles``; ``hidden`` is the one with the variance and hidden light). ``--profile dipole`` or ``artist`` puts that profile on every
 material (the dipole with the measured skin1 and marble of the scene's two slots;
 the compiled kernel runs Burley only, so these always run on NumPy). Run
 from the repo root:
 
-    .venv/bin/python docs/checks/numpy_versus.py REV [WxH ...] [--calls N] [--profile P]
+    .venv/bin/python docs/checks/numpy_versus.py REV [WxH ...] [--calls N] [--profile P] [--timed MODE]
 """
 
 import argparse
@@ -51,7 +52,16 @@ def load_revision(rev: str, folder: Path):
     return module
 
 
-def compare(modules: dict, size: tuple[int, int], calls: int, kind: str) -> None:
+#: --timed: the mode the calls time.
+TIMED = {
+    "cycles": "cycles",
+    "hidden": "cycles, variance, hidden 0.3",
+    "surface": "surface",
+    "planar": "planar",
+}
+
+
+def compare(modules: dict, size: tuple[int, int], calls: int, kind: str, timed: str) -> None:
     w, h = size
     params = SSSParams()
     # The dipole needs measured materials: the synthetic scene's skin and marble slots.
@@ -94,13 +104,13 @@ def compare(modules: dict, size: tuple[int, int], calls: int, kind: str) -> None
     for _ in range(calls):
         for name, module in modules.items():
             t0 = time.perf_counter()
-            run(module)
+            run(module, TIMED[timed])
             times[name].append(time.perf_counter() - t0)
     for name, t in times.items():
         ns = np.array(t) * 1e9 / total
         print(
             f"  {name:>10}: min {ns.min():6.1f}  p25 {np.percentile(ns, 25):6.1f}  "
-            f"median {np.median(ns):6.1f} ns/sample"
+            f"median {np.median(ns):6.1f} ns/sample ({TIMED[timed]})"
         )
 
 
@@ -110,11 +120,12 @@ def main() -> None:
     ap.add_argument("sizes", nargs="*", default=["640x360", "1280x720"])
     ap.add_argument("--calls", type=int, default=9)
     ap.add_argument("--profile", choices=PROFILE_NAMES, default="burley")
+    ap.add_argument("--timed", choices=list(TIMED), default="cycles")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": estimator}
         for size in a.sizes:
-            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, a.profile)
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, a.profile, a.timed)
 
 
 if __name__ == "__main__":

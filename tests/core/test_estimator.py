@@ -8,8 +8,9 @@ import pytest
 
 from cvsss.core import SSSParams, make_processor
 from cvsss.core.geometry import prepare
-from cvsss.core.mc.estimator import estimate_distant
+from cvsss.core.mc.estimator import _pdf, _pdf_at, active_pixels, estimate_distant
 from cvsss.core.profiles import BurleyProfile
+from cvsss.core.profiles.factory import ProfileChoice, frame_profile
 from cvsss.core.synthetic import flat_plane, scene_frame
 
 from helpers import shade, shadow_edge
@@ -220,3 +221,34 @@ def test_an_object_off_the_plane_is_not_touching(kernel):
     _, _, a = shade(frame, 64, contact=0.5, **KERNELS[kernel])
     _, _, b = shade(frame, 64, contact=0.0, **KERNELS[kernel])
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize(
+    "choice",
+    [
+        ProfileChoice(),
+        ProfileChoice(profile="dipole", slot_materials=((1, "skin1"), (2, "marble"))),
+        ProfileChoice(profile="artist"),
+    ],
+    ids=["burley", "dipole", "artist"],
+)
+def test_density_of_a_few_samples_is_the_batch_density_picked(choice):
+    """The hidden-light fill weighs only its own samples (``_pdf_at``, of scattered pixels):
+    bit for bit what the batch's densities (``_pdf``, every sample) give at those samples,
+    per-pixel weight scale included (the artist profile's)."""
+    frame = scene_frame("flash", 2, 96, 54)
+    profile = frame_profile(frame, SSSParams(), choice)
+    geom = prepare(frame, profile, surface_distance=True)
+    counts = (np.arange(geom.size) % 5 + 1).astype(np.int64)
+    active = np.flatnonzero(geom.gamma_sum > 0)  # as estimate_distant picks them
+    pix = active_pixels(geom, profile, counts, active, 2, 7)
+    local = np.repeat(np.arange(active.size), pix.counts)
+    rng = np.random.default_rng(11)
+    r = (rng.random(local.size) * 0.02).astype(np.float32)  # scene units
+    mat = np.repeat(pix.mat, pix.counts)
+    batch = _pdf(profile, r, mat, pix, 0, pix.counts)
+    some = np.sort(rng.choice(local.size, 200, replace=False))
+    picked = _pdf_at(profile, r[some], pix, local[some])
+    assert picked.shape == (3, some.size) and picked.dtype == np.float32
+    assert np.count_nonzero(picked) > picked.size // 4  # densities, not zeros
+    np.testing.assert_array_equal(picked, batch[:, some])
