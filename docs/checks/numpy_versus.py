@@ -10,10 +10,11 @@ per sample of the whole ``estimate_distant`` call (minimum, 25th percentile and
 median of the calls), and whether both give the same bits in each distance mode
 (``cycles``, ``surface``, ``planar``; with the variance and a hidden light of
 0.3 in the first). ``--timed`` picks the mode the calls time (default
-``cycles``; ``hidden`` is the one with the variance and hidden light). ``--profile dipole`` or ``artist`` puts that profile on every
-material (the dipole with the measured skin1 and marble of the scene's two slots;
-the compiled kernel runs Burley only, so these always run on NumPy). Run
-from the repo root:
+``cycles``; ``hidden`` is the one with the variance and hidden light).
+``--profile dipole`` or ``artist`` puts that profile on every material (the
+dipole with the measured skin1 and marble of the scene's two slots; the
+compiled kernel runs Burley only, so these always run on NumPy). Run from the
+repo root:
 
     .venv/bin/python docs/checks/numpy_versus.py REV [WxH ...] [--calls N] [--profile P] [--timed MODE]
 """
