@@ -943,30 +943,26 @@ def _disk_gain(dx, dy, dz, q, normal_cm, pix: Pixels, a: int, c, weighed) -> np.
 
 
 def _pdf_at(profile: Profile, r: np.ndarray, pix: Pixels, at: np.ndarray) -> np.ndarray:
-    """(3, n) float32 density of every channel at r (n,), of the pixels ``at`` (indices into pix).
-
-    The same operations as :func:`_pdf`, for a few samples of scattered pixels.
-    """
-    if type(profile) is BurleyProfile:
-        return pdf_from_table(
-            r, np.take(pix.pscale, at, axis=1), np.take(pix.inv_d, at, axis=1), profile._pcols
-        )
-    dens = profile.pdf_channels(r, np.take(pix.mat, at))
-    if profile.pixel_weight_scale:
-        dens *= np.take(pix.ws, at, axis=1)
-    return dens
+    """(3, n) float32 density of every channel at r (n,), of the pixels ``at`` (indices
+    into pix): :func:`_pdf` for a few samples of scattered pixels."""
+    return _density(profile, r, np.take(pix.mat, at), pix, lambda rows: np.take(rows, at, axis=1))
 
 
 def _pdf(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, a: int, c) -> np.ndarray:
-    """(3, n) float32 density of every channel at r, times the per-pixel weight scale."""
+    """(3, n) float32 density of every channel at r, times the per-pixel weight scale, of
+    a batch's samples (pixels ``a``… with ``c`` samples each)."""
+    return _density(
+        profile, r, mat, pix, lambda rows: np.repeat(rows[:, a : a + c.size], c, axis=1)
+    )
+
+
+def _density(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, per_sample):
+    """(3, n) float32 density of every channel at r (n,) of slots ``mat`` (n,), times the
+    per-pixel weight scale; ``per_sample`` maps a (3, P) per-pixel array to the samples'
+    (3, n) rows."""
     if type(profile) is BurleyProfile:
-        return pdf_from_table(
-            r,
-            np.repeat(pix.pscale[:, a : a + c.size], c, axis=1),
-            np.repeat(pix.inv_d[:, a : a + c.size], c, axis=1),
-            profile._pcols,
-        )
+        return pdf_from_table(r, per_sample(pix.pscale), per_sample(pix.inv_d), profile._pcols)
     dens = profile.pdf_channels(r, mat)
     if profile.pixel_weight_scale:
-        dens *= np.repeat(pix.ws[:, a : a + c.size], c, axis=1)
+        dens *= per_sample(pix.ws)
     return dens
