@@ -97,8 +97,8 @@ def test_real_kernels_are_prepared(no_compile, monkeypatch):
 
 
 # -- the background compile (a process of its own) ------------------------------------
-# The real compile_kernels.py runs in tests/blender/test_addon_cli.py (it compiles into an
-# empty cache while Blender renders); here stand-in scripts play the child, so that each
+# The real compile_kernels.py runs in tests/blender/test_apply_on_render.py (it compiles
+# into an empty cache while Blender renders); here stand-in scripts play the child, so that each
 # way it can end is seen in a second.
 def _child(tmp_path, monkeypatch, body: str):
     script = tmp_path / "child.py"
