@@ -14,9 +14,11 @@ luminance sums and the fall-back count. All calls share one Geometry that a
 ``GeometryCache`` handed on, as the frames of a still scene do: a kernel that
 keeps its texels in a reused Geometry's memos relights them from its second
 call on. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
-or later. Run from the repo root:
+or later. ``--counts LO-HI`` instead gives every SSS pixel of that frame a count
+drawn uniformly from LO…HI (a fixed seed): where the adaptive methods spend their
+samples at low counts, a pixel's own cost weighs. Run from the repo root:
 
-    .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N]
+    .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N] [--counts LO-HI]
 """
 
 import argparse
@@ -52,7 +54,9 @@ def load_revision(rev: str, folder: Path):
     return module
 
 
-def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
+def compare(
+    modules: dict, size: tuple[int, int], calls: int, spread: tuple[int, int] | None = None
+) -> None:
     w, h = size
     params = SSSParams(backend="numba")
     frame, profile, result = steady(size, params)
@@ -60,6 +64,8 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     for _ in range(2):  # the second call hands the Geometry on, as a still scene's next frame
         geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
     counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
+    if spread is not None:
+        counts = np.random.default_rng(0).integers(spread[0], spread[1] + 1, geom.size)
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
     total = int(counts[active].sum())
     args = (frame.lighting, frame.depth, frame.number, params.seed, params.depth_slope)
@@ -112,11 +118,13 @@ def main() -> None:
     ap.add_argument("rev")
     ap.add_argument("sizes", nargs="*", default=["640x360", "1280x720", "1920x1080"])
     ap.add_argument("--calls", type=int, default=15)
+    ap.add_argument("--counts", default=None, help="LO-HI: uniform random counts per pixel")
     a = ap.parse_args()
+    spread = tuple(int(v) for v in a.counts.split("-")) if a.counts else None
     with tempfile.TemporaryDirectory() as tmp:
         modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": estimator_numba}
         for size in a.sizes:
-            compare(modules, tuple(int(v) for v in size.split("x")), a.calls)
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, spread)
 
 
 if __name__ == "__main__":
