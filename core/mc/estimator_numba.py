@@ -77,9 +77,9 @@ _ROWS = 15
     _ROW_K,
 ) = range(0, _ROWS * BATCH, BATCH)
 #: Pixels per parallel task (one set of batch buffers each). 256 rather than 64: the
-#: same bits, 1-3 % less time per call (fewer buffer allocations per pixel; minimum of
-#: 15 interleaved calls of docs/checks/kernel_versus.py at 34 spp and at 4-8 spp);
-#: 128 and 512 measured alike.
+#: same bits, 1-3 % less time per call (minimum of 15 interleaved calls of
+#: docs/checks/kernel_versus.py at 34 spp and at 4-8 spp; presumably the task's
+#: buffer allocations and loop starts spread over more pixels); 128 and 512 alike.
 PIXELS_PER_TASK = 256
 #: Side of the square pixel tiles the kernel visits the pixels in (see tile_order).
 TILE = 32
