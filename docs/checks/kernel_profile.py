@@ -9,7 +9,7 @@ the parallel one) on the steady flash frame of ``shared.steady`` with every
 SSS pixel at ``--counts`` samples (the frame's own ``as_ccv`` counts without
 it), ``--calls`` times, and writes the kernel's machine code and assembly.
 The parent maps each sample's instruction address to the assembly's
-instruction at that place (padding ``nop``\\ s skipped) and so to the source
+instruction at that place (padding nops skipped) and so to the source
 line of its ``.loc`` directive, and prints the share of the kernel's samples
 per stage of ``pixel_sums`` (found by the comments that open them), per source
 line and per instruction.
