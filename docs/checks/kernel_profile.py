@@ -57,9 +57,8 @@ MARKERS = (
 HELPERS = {"def _pcg3d_xy": "pre-pass", "def _pdf": "3 table weights"}
 
 
-def stage_lines() -> list[tuple[int, str]]:
-    """(first line, stage) in source order, from MARKERS."""
-    lines = SOURCE.read_text().splitlines()
+def stage_lines(lines: list[str]) -> list[tuple[int, str]]:
+    """(first line, stage) in source order, from MARKERS; ``lines`` the kernel's source."""
     start = next(i for i, s in enumerate(lines) if s.startswith("def _pixel_sums("))
     out, at = [], start
     for name, marker in MARKERS:
@@ -68,9 +67,8 @@ def stage_lines() -> list[tuple[int, str]]:
     return out
 
 
-def helper_ranges() -> list[tuple[int, int, str]]:
-    """(first, last line, stage) of each helper of HELPERS."""
-    lines = SOURCE.read_text().splitlines()
+def helper_ranges(lines: list[str]) -> list[tuple[int, int, str]]:
+    """(first, last line, stage) of each helper of HELPERS; ``lines`` the kernel's source."""
     out = []
     for head, stage in HELPERS.items():
         a = next(i for i, s in enumerate(lines) if s.startswith(head + "("))
@@ -91,7 +89,7 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
     params = SSSParams(backend="numba")
     frame, profile, result = steady(size, params)
     cache = GeometryCache()
-    for _ in range(2):  # the second call hands the Geometry on, as a still scene's
+    for _ in range(2):  # the second call hands the Geometry on, as a still scene does
         geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
     n = result.counts.reshape(-1)[geom.index].astype(np.int64)
     if counts is not None:
@@ -192,8 +190,8 @@ def report(folder: Path, top: int) -> None:
     if not total:
         sys.exit("perf recorded no samples in the kernel")
     src = SOURCE.read_text().splitlines()
-    stages = stage_lines()
-    helpers = helper_ranges()
+    stages = stage_lines(src)
+    helpers = helper_ranges(src)
 
     def stage_of(line: int | None) -> str:
         if not line:
