@@ -16,9 +16,13 @@ keeps its texels in a reused Geometry's memos relights them from its second
 call on. REV must have ``run_kernel``'s positional arguments of 6ff9b0c
 or later. ``--counts LO-HI`` instead gives every SSS pixel of that frame a count
 drawn uniformly from LO…HI (a fixed seed): where the adaptive methods spend their
-samples at low counts, a pixel's own cost weighs. Run from the repo root:
+samples at low counts, a pixel's own cost weighs. ``--frame N`` takes frame N of the
+sequence and its ``as_ccv`` counts instead of frame 3's (from frame 4 on, once the
+history settles, about 87 % of the pixels take β_min = 8 samples). Run from the repo
+root:
 
     .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N] [--counts LO-HI]
+        [--frame N]
 """
 
 import argparse
@@ -55,11 +59,15 @@ def load_revision(rev: str, folder: Path):
 
 
 def compare(
-    modules: dict, size: tuple[int, int], calls: int, spread: tuple[int, int] | None = None
+    modules: dict,
+    size: tuple[int, int],
+    calls: int,
+    spread: tuple[int, int] | None = None,
+    number: int = 3,
 ) -> None:
     w, h = size
     params = SSSParams(backend="numba")
-    frame, profile, result = steady(size, params)
+    frame, profile, result = steady(size, params, number=number)
     cache = GeometryCache()
     for _ in range(2):  # the second call hands the Geometry on, as a still scene's next frame
         geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
@@ -119,12 +127,13 @@ def main() -> None:
     ap.add_argument("sizes", nargs="*", default=["640x360", "1280x720", "1920x1080"])
     ap.add_argument("--calls", type=int, default=15)
     ap.add_argument("--counts", default=None, help="LO-HI: uniform random counts per pixel")
+    ap.add_argument("--frame", type=int, default=3, help="the frame whose counts to take")
     a = ap.parse_args()
     spread = tuple(int(v) for v in a.counts.split("-")) if a.counts else None
     with tempfile.TemporaryDirectory() as tmp:
         modules = {a.rev: load_revision(a.rev, Path(tmp)), "this": estimator_numba}
         for size in a.sizes:
-            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, spread)
+            compare(modules, tuple(int(v) for v in size.split("x")), a.calls, spread, a.frame)
 
 
 if __name__ == "__main__":

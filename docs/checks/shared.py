@@ -18,13 +18,17 @@ from cvsss.core.synthetic import scene_frame
 
 
 def steady(
-    size: tuple[int, int], params: SSSParams, options: MethodOptions | None = None
+    size: tuple[int, int],
+    params: SSSParams,
+    options: MethodOptions | None = None,
+    number: int = 3,
 ) -> tuple[Frame, object, FrameResult]:
-    """Frame 3 of the flash sequence (``core.synthetic``) at ``size`` (W, H pixels) after
-    frames 1–2 through ``as_ccv``: the frame, its profile and its result (whose sample
-    counts are a steady frame's)."""
+    """Frame ``number`` (3) of the flash sequence (``core.synthetic``) at ``size`` (W, H
+    pixels) after the frames before it through ``as_ccv``: the frame, its profile and its
+    result (whose sample counts are a steady frame's: about 34 spp at frame 3, where the
+    bench times its cost rows; from frame 4 on most pixels take β_min = 8)."""
     w, h = size
-    frames = [scene_frame("flash", n, w, h) for n in (1, 2, 3)]
+    frames = [scene_frame("flash", n, w, h) for n in range(1, number + 1)]
     proc = make_processor("as_ccv", params, options or MethodOptions())
     for frame in frames:
         result = proc.process(frame)
