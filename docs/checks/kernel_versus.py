@@ -18,7 +18,7 @@ or later. ``--counts LO-HI`` instead gives every SSS pixel of that frame a count
 drawn uniformly from LO…HI (a fixed seed): where the adaptive methods spend their
 samples at low counts, a pixel's own cost weighs. ``--frame N`` takes frame N of the
 sequence and its ``as_ccv`` counts instead of frame 3's (from frame 4 on, once the
-history settles, about 87 % of the pixels take β_min = 8 samples). Run from the repo
+history settles, 82–87 % of the pixels take β_min = 8 samples). Run from the repo
 root:
 
     .venv/bin/python docs/checks/kernel_versus.py REV [WxH ...] [--calls N] [--counts LO-HI]
