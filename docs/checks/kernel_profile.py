@@ -80,18 +80,13 @@ def helper_ranges(lines: list[str]) -> list[tuple[int, int, str]]:
 def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -> None:
     """Run the serial kernel ``calls`` times; write its code, assembly and address."""
     import numpy as np
-    from shared import steady
+    from shared import steady_geometry
 
-    from cvsss.core.geometry import GeometryCache
     from cvsss.core.mc import estimator_numba as en
     from cvsss.core.params import SSSParams
 
     params = SSSParams(backend="numba")
-    frame, profile, result = steady(size, params)
-    cache = GeometryCache()
-    for _ in range(2):  # the second call hands the Geometry on, as a still scene does
-        geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
-    n = result.counts.reshape(-1)[geom.index].astype(np.int64)
+    frame, profile, geom, n = steady_geometry(size, params)
     if counts is not None:
         n = np.full(geom.size, counts, np.int64)
     active = np.flatnonzero((n > 0) & (geom.gamma_sum > 0))

@@ -34,9 +34,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from shared import steady
+from shared import steady_geometry
 
-from cvsss.core.geometry import GeometryCache
 from cvsss.core.mc import estimator_numba
 from cvsss.core.params import SSSParams
 
@@ -67,11 +66,7 @@ def compare(
 ) -> None:
     w, h = size
     params = SSSParams(backend="numba")
-    frame, profile, result = steady(size, params, number=number)
-    cache = GeometryCache()
-    for _ in range(2):  # the second call hands the Geometry on, as a still scene's next frame
-        geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
-    counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
+    frame, profile, geom, counts = steady_geometry(size, params, number)
     if spread is not None:
         counts = np.random.default_rng(0).integers(spread[0], spread[1] + 1, geom.size)
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))

@@ -1,5 +1,6 @@
 """Shared by the check scripts beside it: a steady ``as_ccv`` frame of the bench's flash
-scene, and the compiled kernel's calls timed.
+scene (and its Geometry and counts as the compiled kernel takes them), and the compiled
+kernel's calls timed.
 
 Not a check itself; the scripts import it by name (Python puts a script's own
 folder first on ``sys.path``).
@@ -9,7 +10,10 @@ import contextlib
 import time
 from collections.abc import Iterator
 
+import numpy as np
+
 from cvsss.core.frame import Frame
+from cvsss.core.geometry import Geometry, GeometryCache
 from cvsss.core.mc import estimator_numba
 from cvsss.core.methods import MethodOptions, make_processor
 from cvsss.core.params import SSSParams
@@ -33,6 +37,20 @@ def steady(
     for frame in frames:
         result = proc.process(frame)
     return frames[-1], proc.profiles.get(frames[-1]), result
+
+
+def steady_geometry(
+    size: tuple[int, int], params: SSSParams, number: int = 3
+) -> tuple[Frame, object, Geometry, np.ndarray]:
+    """:func:`steady`'s frame, its profile, its Geometry (surface distance, core pixels,
+    numba backend) as a still scene's next frame gets it from a ``GeometryCache`` (the
+    second call hands it on), and the result's counts per Geometry pixel ((G,) int64)."""
+    frame, profile, result = steady(size, params, number=number)
+    cache = GeometryCache()
+    for _ in range(2):
+        geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
+    counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
+    return frame, profile, geom, counts
 
 
 @contextlib.contextmanager
