@@ -197,6 +197,21 @@ def native_notes(scene) -> list[str]:
     return notes + [note[0].upper() + note[1:] for note in _bypassed(scene)]
 
 
+def keep_no_engine(scene) -> None:
+    """Let Blender free the render engine after each render of ``scene``, a scene the
+    add-on removes when it is done with it.
+
+    A copy inherits the user's *Persistent Data*, and with it on Blender keeps the
+    engine of a finished render, and the engine its depsgraph, registered with the
+    blend data. Removing the scene then left that depsgraph pointing at freed memory,
+    which Blender read again whenever a datablock was added or removed later in the
+    session (valgrind: invalid reads in ``DEG_relations_tag_update`` after an Apply on
+    Render of the demo scene; a segmentation fault in ``bpy.data.images.remove`` in
+    one CI run).
+    """
+    scene.render.use_persistent_data = False
+
+
 def output_scene(scene, layer_name: str):
     """A linked copy of ``scene`` with its output settings and only its camera, for
     :class:`ResultEngine` to write finished frames with Blender's own writer."""
@@ -211,6 +226,7 @@ def output_scene(scene, layer_name: str):
         out.camera = scene.camera
     r = out.render
     r.engine = ENGINE
+    keep_no_engine(out)
     r.use_compositing = False
     r.use_sequencer = False
     r.use_border = False
@@ -408,6 +424,7 @@ class Session:
         frames = warmup_frames(first, self.warmup, self.step)
         copy = self.scene.copy()  # own Render, so this nests inside the user's render
         copy.name = f"cvsss warm-up ({self.scene.name})"
+        keep_no_engine(copy)
         try:
             layer = copy.view_layers[self.job.view_layer.name]
             for index, frame in enumerate(frames, 1):

@@ -5,6 +5,7 @@ on the same scene, frames and settings: its linear Composite, written with
 the scene's colour management (Image.save_render) for 8-bit formats.
 """
 
+import gc
 import time
 from pathlib import Path
 
@@ -92,8 +93,16 @@ def _frame_paths(scene) -> dict[int, Path]:
     return {f: Path(scene.render.frame_path(frame=f)) for f in range(FRAMES[0], FRAMES[1] + 1)}
 
 
+def _result_engines() -> list:
+    """The :class:`native.ResultEngine` instances alive: an engine Blender kept after a
+    render (Persistent Data), with its depsgraph."""
+    gc.collect()
+    return [o for o in gc.get_objects() if isinstance(o, native.ResultEngine)]
+
+
 def test_png_animation_equals_cvsss_render(scene, tmp_path, snapshot):
     scene_state, state_diff = snapshot
+    assert scene.render.use_persistent_data  # the demo's setting, copied by the output scene
     expected = _reference(scene, tmp_path / "ref")
     before = scene_state(scene)
     scenes = {s.name for s in bpy.data.scenes}
@@ -103,6 +112,8 @@ def test_png_animation_equals_cvsss_render(scene, tmp_path, snapshot):
     assert state_diff(before, scene_state(scene)) == []
     assert {s.name for s in bpy.data.scenes} == scenes
     assert native.active_session() is None
+    # The removed output scene left no engine (and depsgraph pointing at it) behind.
+    assert _result_engines() == []
     paths = _frame_paths(scene)
     assert sorted(p.name for p in paths[1].parent.iterdir()) == [p.name for p in paths.values()]
     for frame, path in paths.items():
