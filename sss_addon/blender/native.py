@@ -197,26 +197,29 @@ def native_notes(scene) -> list[str]:
     return notes + [note[0].upper() + note[1:] for note in _bypassed(scene)]
 
 
-def keep_no_engine(scene) -> None:
-    """Let Blender free the render engine after each render of ``scene``, a scene the
-    add-on removes when it is done with it.
+def scene_copy(scene, role: str):
+    """A linked copy of ``scene``, named ``cvsss <role> (<scene name>)``, for the add-on's
+    own renders; the add-on removes it when it is done with it.
 
-    A copy inherits the user's *Persistent Data*, and with it on Blender keeps the
-    engine of a finished render, and the engine its depsgraph, registered with the
-    blend data. Removing the scene then left that depsgraph pointing at freed memory,
-    which Blender read again whenever a datablock was added or removed later in the
-    session (valgrind: invalid reads in ``DEG_relations_tag_update`` after an Apply on
-    Render of the demo scene; a segmentation fault in ``bpy.data.images.remove`` in
-    one CI run).
+    Its *Persistent Data* is off, whatever the user's scene says, so that Blender frees
+    the render engine after each of its renders. With it on, Blender kept the engine
+    of a finished render, and the engine its depsgraph, registered with the blend
+    data; removing the copy then left that depsgraph pointing at freed memory, which
+    Blender read again whenever a datablock was added or removed later in the session
+    (valgrind: invalid reads in ``DEG_relations_tag_update`` after an Apply on Render
+    of the demo scene; a segmentation fault in ``bpy.data.images.remove`` in one CI
+    run).
     """
-    scene.render.use_persistent_data = False
+    copy = scene.copy()
+    copy.name = f"cvsss {role} ({scene.name})"
+    copy.render.use_persistent_data = False
+    return copy
 
 
 def output_scene(scene, layer_name: str):
     """A linked copy of ``scene`` with its output settings and only its camera, for
     :class:`ResultEngine` to write finished frames with Blender's own writer."""
-    out = scene.copy()
-    out.name = f"cvsss output ({scene.name})"
+    out = scene_copy(scene, "output")
     for child in list(out.collection.children):
         out.collection.children.unlink(child)
     for obj in list(out.collection.objects):
@@ -226,7 +229,6 @@ def output_scene(scene, layer_name: str):
         out.camera = scene.camera
     r = out.render
     r.engine = ENGINE
-    keep_no_engine(out)
     r.use_compositing = False
     r.use_sequencer = False
     r.use_border = False
@@ -422,9 +424,8 @@ class Session:
         from .render import warmup_frames
 
         frames = warmup_frames(first, self.warmup, self.step)
-        copy = self.scene.copy()  # own Render, so this nests inside the user's render
-        copy.name = f"cvsss warm-up ({self.scene.name})"
-        keep_no_engine(copy)
+        # A scene of its own has its own Render, so this nests inside the user's render.
+        copy = scene_copy(self.scene, "warm-up")
         try:
             layer = copy.view_layers[self.job.view_layer.name]
             for index, frame in enumerate(frames, 1):
