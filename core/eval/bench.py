@@ -25,7 +25,8 @@ run on this machine, so it means something on any machine:
     run on ``backend_default``, what ``backend = "auto"`` picks.
 ``frame_time_ms``
     Whole-frame time (``total_ms``) per backend, size (1280×720, 1920×1080,
-    2560×1440) and method, on the first frame of the sequence (no history
+    2560×1440) and method (:data:`FRAME_METHODS`: the cost methods, ``as_ccv_t``
+    and ``separable``), on the first frame of the sequence (no history
     yet: the adaptive methods take their initial count, an upper bound of a
     steady frame's time; see :func:`section_frames`).
 ``samples_time_r2``
@@ -109,6 +110,10 @@ MeasureWorkers = Callable[["BenchConfig"], dict]
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 COST_METHODS = ("fixed", "as", "as_ocv", "as_ccv")
+#: Whole-frame rows: the cost methods, the temporal one the README recommends for
+#: sequences (its proxy and neighbourhood passes weigh on the frame, not the sampling
+#: step) and the separable baseline.
+FRAME_METHODS = (*COST_METHODS, "as_ccv_t", "separable")
 #: Every section, in the order they run. ``rss`` runs last: its fresh processes take and
 #: free gigabytes, and for minutes afterwards the machine (here a VM returning the freed
 #: pages) slowed every timing section by spells of tens of milliseconds (the Pareto
@@ -145,7 +150,7 @@ class BenchConfig:
     backends: tuple[str, ...] = ("numpy", "numba")
     # whole-frame time per backend and method
     frame_sizes: tuple[Size, ...] = ((1280, 720), (1920, 1080), (2560, 1440))
-    frame_methods: tuple[str, ...] = COST_METHODS
+    frame_methods: tuple[str, ...] = FRAME_METHODS
     frame_frames: int = 1
     # samples → time fit
     fit_size: Size = (640, 360)
@@ -204,7 +209,7 @@ QUICK = BenchConfig(
     cost_frames=2,
     cost_fixed_spp=4,
     frame_sizes=((32, 18), (48, 27)),
-    frame_methods=("fixed", "as_ccv"),
+    frame_methods=("fixed", "as_ccv", "as_ccv_t", "separable"),
     fit_size=(32, 18),
     fit_fixed_spp=(2, 8),
     fit_frames=2,

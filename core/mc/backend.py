@@ -151,8 +151,9 @@ def compiled(requested: str) -> bool:
     """True where ``requested`` resolves to the compiled (numba) backend.
 
     The sampling step and the per-frame steps with a compiled twin (the surface,
-    the region, the SPVG step, the composite and maps, the history reprojection)
-    dispatch on it; "numpy" returns at once, without importing numba.
+    the region, the SPVG step, the composite and maps, the history reprojection,
+    the separable passes, the temporal neighbourhood) dispatch on it; "numpy"
+    returns at once, without importing numba.
     """
     return requested != "numpy" and resolve(requested) == "numba"
 

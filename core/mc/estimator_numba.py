@@ -30,7 +30,9 @@ same arithmetic as its NumPy original and tested bit for bit against it: the
 depth-buffer surface, the Burley region, the SPVG counts and history update,
 the whole history step of the methods without an online control variate
 (tracked luminance, update and float32 stores in place), the composite and
-float maps, and the history reprojection.
+float maps, the history reprojection, the separable passes (the
+``separable`` method and the temporal methods' noise-free proxy) and the
+temporal reuse's 3×3 neighbourhood statistics.
 
 This module imports numba at import time; import it through
 :mod:`core.mc.backend`, which does so lazily and falls back to NumPy.
@@ -1084,6 +1086,19 @@ def warm_up(pixels: int | None = None) -> None:
         reproject_map(motion, plane, at.reshape(1, 1), plane, at.reshape(1, 1), 0.1)
     for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
         fetch(np.zeros(1, dtype), at, yes)
+    # The separable passes (the separable method, the temporal proxy) and the temporal
+    # reuse's neighbourhood, in the argument types core.separable.apply and
+    # core.mc.temporal pass.
+    f32 = np.float32
+    pix = (at, at, at, np.ones(1, np.int32), one32, at, at, one32)
+    tables = (np.ones(1, f32), np.ones(1, np.int32), np.zeros((2, 3)), np.zeros((2, 3)))
+    for linear in (False, True):
+        separable_pass(
+            np.ones((1, 3), f32), 0, 1, *pix, yes, *tables, np.zeros(3, np.bool_),
+            np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), linear,
+            np.zeros((1, 3), f32),
+        )  # fmt: skip
+    neighbourhood_pass(g3, yes, at, np.ones(1, np.int32), at, 1, 1, g3.copy(), g3.copy())
 
 
 def _warm(fn) -> None:
@@ -1733,3 +1748,242 @@ def fetch(values: np.ndarray, src: np.ndarray, keep: np.ndarray) -> np.ndarray:
 def _fetch_pass(values, src, keep, out):
     for i in numba.prange(out.shape[0]):
         out[i] = values[src[i]] if keep[i] else 0
+
+
+# -- the separable passes (core.separable.apply) ---------------------------------------
+#: Pixels per parallel task of the separable and neighbourhood passes.
+_ROW_TASK = 1024
+_INV_2_32_F32 = np.float32(2.0**-32)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def separable_pass(
+    src,
+    c0,
+    reps,
+    index,
+    px,
+    py,
+    mat,
+    z,
+    coord_i,
+    base,
+    scale,
+    core,
+    depth_flat,
+    mat_flat,
+    offsets,
+    width,
+    jittered,
+    weights,
+    stride,
+    size,
+    first,
+    span,
+    key,
+    slope,
+    neg_inv2tau,
+    linear,
+    out,
+):
+    """One 1D separable pass of one RGB group, per pixel:
+    :func:`core.separable.apply._one_pass`'s float32 arithmetic operation by
+    operation, each pixel's taps in order.
+
+    Reads the channels ``c0 … c0 + 2`` of ``src`` and adds to the columns
+    ``c0 + 3·r + c`` of ``out``, r < ``reps`` (the horizontal pass's one RGB read feeds
+    its J terms: c0 = 0, reps = J; the vertical pass reads and writes term t's
+    group: c0 = 3t, reps = 1).
+
+    Parameters
+    ----------
+    src : (H·W, C) float32, pixel-major source image (a read's channels share a line)
+    c0 : int, first channel read and first column written; reps : int, groups written
+    index, px, py : (P,) int64, flat index into the frame's arrays and image coords
+    mat : (P,) int32 slot; z : (P,) float32 depth; coord_i : (P,) int64, the pixel's
+        image coordinate along the pass; base : (P,) int64, the read's flat offset
+        across it; scale : (P,) float32, pixels per scene unit along it
+    core : (P,) bool, pixels whose zero-weight reads are counted
+    depth_flat : (H·W,) float32; mat_flat : (H·W,) int32
+    offsets, width : (K, n) float64 tap offsets (scene units) and jitter cells
+    jittered : (n,) bool, the tap is jittered on some pixel's slot (NumPy's test)
+    weights : (K, n, 3·R') float32 tap weights
+    stride, size, first, span : int, as in _one_pass; key : int64 jitter key (< 0: none)
+    slope : float64 depth slope (< 0: the exponential follow with ``neg_inv2tau``)
+    neg_inv2tau : (K,) float32, −1/(2τ) per slot
+    linear : bool, read between the two nearest pixels
+    out : (P, 3·R') float32, zeroed; gains Σ_i w_i·sample_i
+
+    Returns
+    -------
+    fallback : (T,) int64, zero-weight reads of core pixels per task
+    """
+    n_pix = index.shape[0]
+    n = offsets.shape[1]
+    half = n // 2
+    reads = 2 if linear else 1
+    cropped = first != 0 or span != size
+    n_tasks = (n_pix + _ROW_TASK - 1) // _ROW_TASK
+    fallback = np.zeros(n_tasks, np.int64)
+    f32slope = np.float64(np.float32(slope))
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for t in numba.prange(n_tasks):
+        nfb = 0
+        for k in range(t * _ROW_TASK, min(n_pix, (t + 1) * _ROW_TASK)):
+            s = mat[k]
+            ck = index[k]
+            zk = z[k]
+            sk = scale[k]
+            ci = coord_i[k]
+            cf = np.float32(ci)
+            bk = base[k]
+            counted = core[k]
+            b0 = src[ck, c0]
+            b1 = src[ck, c0 + 1]
+            b2 = src[ck, c0 + 2]
+            # The sums of a single group stay in registers (out starts at 0, as there).
+            a0 = a1 = a2 = zero
+            for i in range(n):
+                if i == half:
+                    v0 = b0
+                    v1 = b1
+                    v2 = b2
+                else:
+                    pos = np.float32(offsets[s, i])
+                    if jittered[i] and key >= 0:
+                        hx = _pcg3d_x(
+                            np.uint64(px[k]) & _M32,
+                            np.uint64(py[k]) & _M32,
+                            np.uint64(key * 67 + i) & _M32,
+                        )
+                        jit = np.float32(np.float64(hx) * np.float64(_INV_2_32_F32))
+                        jit = jit - np.float32(0.5)
+                        jit = jit * np.float32(width[s, i])
+                        pos = pos + jit
+                    pos = pos * sk
+                    pos = pos + cf
+                    v0 = v1 = v2 = zero
+                    fr = zero
+                    if linear:
+                        p0f = np.floor(pos)
+                        fr = pos - p0f
+                        p0 = np.int64(p0f)
+                    else:
+                        p0 = np.int64(np.rint(pos))
+                    for r in range(reads):
+                        p = p0 + r
+                        pc = min(max(p, 0), size - 1)
+                        local = pc
+                        outside = False
+                        if cropped:
+                            local = pc - first
+                            outside = local < 0 or local >= span
+                            local = min(max(local, 0), span - 1)
+                        q = local * stride + bk
+                        d = depth_flat[q] if mat_flat[q] == s else inf
+                        wz = d - zk
+                        if slope < 0:
+                            wz = wz * wz
+                            wz = wz * neg_inv2tau[s]
+                            wz = np.exp(wz)
+                        else:
+                            dist = np.float64(abs(p - ci))
+                            wz = one if np.float64(abs(wz) * sk) <= f32slope * dist else zero
+                        if p != pc or outside:
+                            wz = zero
+                        if counted and wz == zero:
+                            nfb += 1
+                        if linear:
+                            wz = wz * ((one - fr) if r == 0 else fr)
+                        v0 = v0 + (src[q, c0] - b0) * wz
+                        v1 = v1 + (src[q, c0 + 1] - b1) * wz
+                        v2 = v2 + (src[q, c0 + 2] - b2) * wz
+                    v0 = v0 + b0
+                    v1 = v1 + b1
+                    v2 = v2 + b2
+                if reps == 1:
+                    a0 = a0 + weights[s, i, c0] * v0
+                    a1 = a1 + weights[s, i, c0 + 1] * v1
+                    a2 = a2 + weights[s, i, c0 + 2] * v2
+                else:
+                    for rep in range(reps):
+                        o = c0 + 3 * rep
+                        out[k, o] += weights[s, i, o] * v0
+                        out[k, o + 1] += weights[s, i, o + 1] * v1
+                        out[k, o + 2] += weights[s, i, o + 2] * v2
+            if reps == 1:
+                out[k, c0] = a0
+                out[k, c0 + 1] = a1
+                out[k, c0 + 2] = a2
+        fallback[t] = nfb
+    return fallback
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _pcg3d_x(x, y, z):
+    """The first word of :func:`core.sampling.sequence.pcg3d` (as :func:`_pcg3d_xy`)."""
+    vx = (x * _LCG_A + _LCG_C) & _M32
+    vy = (y * _LCG_A + _LCG_C) & _M32
+    vz = (z * _LCG_A + _LCG_C) & _M32
+    vx = (vx + vy * vz) & _M32
+    vy = (vy + vz * vx) & _M32
+    vz = (vz + vx * vy) & _M32
+    vx ^= vx >> _S16
+    vy ^= vy >> _S16
+    vz ^= vz >> _S16
+    return (vx + vy * vz) & _M32
+
+
+# -- the temporal reuse's neighbourhood (core.mc.temporal) -----------------------------
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def neighbourhood_pass(values, active, index, mat, where, w, h, mean, std):
+    """Mean and standard deviation over each pixel's 3×3 neighbours of the same slot
+    holding a value (:func:`core.mc.temporal.neighbourhood`, its float64 operations in
+    its order).
+
+    Parameters
+    ----------
+    values : (P, 3) float64; active : (P,) bool; index : (P,) int64 flat pixel;
+    mat : (P,) int32 slot; where : (H·W,) int64, the Geometry pixel at each frame
+        pixel (−1: none); w, h : int, the frame's size
+    mean, std : (P, 3) float64, written
+    """
+    n_pix = index.shape[0]
+    for k in numba.prange(n_pix):
+        y = index[k] // w
+        x = index[k] - y * w
+        t0 = t1 = t2 = 0.0
+        q0 = q1 = q2 = 0.0
+        count = 0.0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                xx = x + dx
+                yy = y + dy
+                v0 = v1 = v2 = 0.0
+                ok = False
+                if xx >= 0 and xx < w and yy >= 0 and yy < h:
+                    j = where[yy * w + xx]
+                    if j >= 0 and active[j] and mat[j] == mat[k] and not np.isnan(values[j, 0]):
+                        ok = True
+                        v0 = values[j, 0]
+                        v1 = values[j, 1]
+                        v2 = values[j, 2]
+                t0 += v0
+                t1 += v1
+                t2 += v2
+                q0 += v0 * v0
+                q1 += v1 * v1
+                q2 += v2 * v2
+                count += 1.0 if ok else 0.0
+        nn = max(count, 1.0)
+        m0 = t0 / nn
+        m1 = t1 / nn
+        m2 = t2 / nn
+        mean[k, 0] = m0
+        mean[k, 1] = m1
+        mean[k, 2] = m2
+        std[k, 0] = np.sqrt(max(q0 / nn - m0 * m0, 0.0))
+        std[k, 1] = np.sqrt(max(q1 / nn - m1 * m1, 0.0))
+        std[k, 2] = np.sqrt(max(q2 / nn - m2 * m2, 0.0))

@@ -199,6 +199,7 @@ class MonteCarloProcessor:
                     tolerance=p.temporal_tolerance,
                     noise=noise,
                     scale=light_scale(frame, profile),
+                    backend=p.backend,
                 )
             hist.frame = frame.number
             self.history = hist
@@ -241,6 +242,7 @@ class MonteCarloProcessor:
             seed=self.params.seed,
             depth_slope=self.params.depth_slope,
             geom=full,
+            backend=self.params.backend,
         )
         if full is not geom:
             shaded = shaded[np.searchsorted(full.index, geom.index)]

@@ -49,6 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import Geometry
+from .backend import compiled
 from .history import History
 
 TEMPORAL_MODES = ("multiplicative", "subtractive")
@@ -78,7 +79,9 @@ def _write3(hist: History, names, idx: np.ndarray, values: np.ndarray) -> None:
         hist.write(name, idx, values[:, c])
 
 
-def neighbourhood(geom: Geometry, values: np.ndarray, active: np.ndarray) -> tuple:
+def neighbourhood(
+    geom: Geometry, values: np.ndarray, active: np.ndarray, backend: str = "numpy"
+) -> tuple:
     """Mean and standard deviation of ``values`` over each pixel's 3×3 neighbours.
 
     Only active SSS pixels of the same material count (the pixel itself
@@ -89,12 +92,32 @@ def neighbourhood(geom: Geometry, values: np.ndarray, active: np.ndarray) -> tup
     geom : Geometry (P SSS pixels)
     values : (P, 3) float
     active : (P,) bool, pixels that hold a value this frame
+    backend : one of core.params.BACKENDS; where it resolves to numba this is one
+        compiled pass (:func:`core.mc.estimator_numba.neighbourhood_pass`, the same
+        float64 operations in the same order: the same bits)
 
     Returns
     -------
     mean, std : (P, 3) float64
     """
     h, w = geom.shape
+    if compiled(backend):
+        from .estimator_numba import neighbourhood_pass
+
+        mean = np.empty((geom.size, 3))
+        std = np.empty((geom.size, 3))
+        neighbourhood_pass(
+            np.ascontiguousarray(values, np.float64),
+            np.ascontiguousarray(active, bool),
+            np.ascontiguousarray(geom.index, np.int64),
+            np.ascontiguousarray(geom.mat, np.int32),
+            geom.memo("pixel_at", lambda: _pixel_at(geom)),
+            int(w),
+            int(h),
+            mean,
+            std,
+        )
+        return mean, std
     img = np.full((h * w, 3), np.nan)
     img[geom.index[active]] = values[active]
     mat = np.zeros(h * w, np.int32)
@@ -121,6 +144,13 @@ def neighbourhood(geom: Geometry, values: np.ndarray, active: np.ndarray) -> tup
     return mean, np.sqrt(var)
 
 
+def _pixel_at(geom: Geometry) -> np.ndarray:
+    """(H·W,) int64: the Geometry pixel at each pixel of the frame's arrays (−1: none)."""
+    at = np.full(geom.shape[0] * geom.shape[1], -1, np.int64)
+    at[geom.index] = np.arange(geom.size)
+    return at
+
+
 def reuse(
     hist: History,
     geom: Geometry,
@@ -136,6 +166,7 @@ def reuse(
     tolerance: float,
     noise: np.ndarray | None = None,
     scale: np.ndarray | None = None,
+    backend: str = "numpy",
 ) -> tuple[np.ndarray, np.ndarray]:
     """One temporal-reuse step (see the module doc); updates ``hist`` in place.
 
@@ -162,6 +193,8 @@ def reuse(
         ε = 1e-3·scale keeps the logarithms and ratios finite on black pixels.
         Default: the mean of ``control`` over these pixels (a tile must pass
         its whole image's).
+    backend : one of core.params.BACKENDS, for the neighbourhood statistics
+        (:func:`neighbourhood`; the same values on either)
 
     Returns
     -------
@@ -200,7 +233,7 @@ def reuse(
         delta = np.nan_to_num(delta.max(axis=1), nan=np.inf)
         n = n * np.exp(-((delta / tolerance) ** 2))
     if np.isfinite(clamp):
-        mean, std = neighbourhood(geom, value, active)
+        mean, std = neighbourhood(geom, value, active, backend)
         prev = np.clip(prev, mean - clamp * std, mean + clamp * std)
     if mode != "plain" and noise is not None:
         # What the history predicts for this frame against what it measured, in
@@ -213,7 +246,7 @@ def reuse(
         var = np.nan_to_num(np.asarray(noise, dtype=np.float64) ** 2, posinf=np.inf)
         finite = np.isfinite(var)
         pooled, _ = neighbourhood(
-            geom, np.repeat(np.where(finite, var, 0.0)[:, None], 3, 1), active & finite
+            geom, np.repeat(np.where(finite, var, 0.0)[:, None], 3, 1), active & finite, backend
         )
         sigma = np.where(finite, np.sqrt(pooled[:, 0]), np.inf)
         with np.errstate(divide="ignore", invalid="ignore"):

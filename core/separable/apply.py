@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Geometry, prepare
+from ..mc.backend import compiled
 from ..params import SeparableParams
 from ..profiles.base import Profile
 from ..sampling.sequence import pcg3d
@@ -115,6 +116,23 @@ def _pixels(geom: Geometry) -> _Pixels:
     )
 
 
+def _axis(px: _Pixels, shape: tuple[int, int], axis: int) -> tuple:
+    """Where a pass along ``axis`` (0: x, 1: y) reads: (coord, base, stride, size, scale,
+    first, span).
+
+    A read at image coordinate p is the flat pixel ``base + clip(p)·stride``; a p
+    outside [0, size) fails the inside test. Positions are image coordinates (a crop
+    reads what the whole image reads); a crop's arrays start at ``first`` and span
+    ``span`` pixels, and a read that leaves them gets no weight. ``coord`` (P,) is the
+    pixel's own coordinate, ``scale`` (P,) float32 its pixels per scene unit.
+    """
+    h, w = shape
+    oy, ox = px.origin
+    if axis == 0:
+        return px.x, (px.y - oy) * w, 1, px.image[1], px.inv_fw, ox, w
+    return px.y, px.x - ox, w, px.image[0], px.inv_fh, oy, h
+
+
 def _one_pass(
     src: np.ndarray,
     px: _Pixels,
@@ -148,22 +166,12 @@ def _one_pass(
     fallback : reads with zero weight: other material, off screen, or a depth
         difference that removes them entirely (of the core pixels, for a crop)
     """
-    h, w = shape
     c_in = src.shape[0]
     c_out = weights.shape[2]
     reps = c_out // c_in
     p_count = px.index.size
     n = tab.offsets.shape[1]
-    oy, ox = px.origin
-    # A read is q = base + clip(p)·stride; a p outside [0, size) fails the inside test.
-    # Positions are image coordinates (a crop reads what the whole image reads); a
-    # crop's arrays start at ``first`` and a read that leaves them gets no weight.
-    if axis == 0:
-        coord, base, stride, size, scale = px.x, (px.y - oy) * w, 1, px.image[1], px.inv_fw
-        first, span = ox, w
-    else:
-        coord, base, stride, size, scale = px.y, px.x - ox, w, px.image[0], px.inv_fh
-        first, span = oy, h
+    coord, base, stride, size, scale, first, span = _axis(px, shape, axis)
     cropped = first != 0 or span != size
     coord_i = coord.astype(np.intp)
     coord = coord.astype(np.float32)
@@ -245,6 +253,80 @@ def _one_pass(
     return out.reshape(c_out, p_count), fallback
 
 
+def _compiled_pass(
+    src: np.ndarray,
+    px: _Pixels,
+    shape: tuple[int, int],
+    depth_flat: np.ndarray,
+    mat_flat: np.ndarray,
+    tab: _Tables,
+    weights: np.ndarray,
+    axis: int,
+    jitter_key: int | None,
+    depth_slope: float | None,
+    linear: bool = False,
+) -> tuple[np.ndarray, int]:
+    """:func:`_one_pass` as one compiled loop per pixel
+    (:func:`core.mc.estimator_numba.separable_pass`): the same float32 operations per
+    read and tap, in the same order, so the same values (the exponential follow's
+    ``exp`` comes from another library: within float32 rounding).
+
+    Parameters are :func:`_one_pass`'s, but ``src`` is (H·W, C) float32, pixel-major.
+
+    Returns
+    -------
+    out : (P, 3J) float32, sorted order (the transpose of _one_pass's)
+    fallback : as _one_pass
+    """
+    from ..mc.estimator_numba import separable_pass
+
+    coord, base, stride, size, scale, first, span = _axis(px, shape, axis)
+    present = np.zeros(tab.width.shape[0], bool)
+    present[px.slots] = True
+    p_count = px.index.size
+    out = np.zeros((p_count, weights.shape[2]), np.float32)
+    core = np.ones(p_count, bool) if px.core is None else np.ascontiguousarray(px.core, bool)
+    # One RGB group per call: the horizontal pass's one read feeds all J terms (c0 = 0,
+    # R = J); the vertical pass reads term t's group and writes it (c0 = 3t, R = 1),
+    # counting its fall-backs once.
+    reps = weights.shape[2] // src.shape[1]
+    fallback = 0
+    # Every argument in the one form the warm-up compiles (estimator_numba.warm_up).
+    i64 = np.int64
+    args = (
+        np.ascontiguousarray(px.index, i64),
+        np.ascontiguousarray(px.x, i64),
+        np.ascontiguousarray(px.y, i64),
+        np.ascontiguousarray(px.mat, np.int32),
+        np.ascontiguousarray(px.z, np.float32),
+        np.ascontiguousarray(coord, i64),
+        np.ascontiguousarray(base, i64),
+        np.ascontiguousarray(scale, np.float32),
+    )
+    tables = (
+        np.ascontiguousarray(depth_flat, np.float32),
+        np.ascontiguousarray(mat_flat, np.int32),
+        np.ascontiguousarray(tab.offsets, np.float64),
+        np.ascontiguousarray(tab.width, np.float64),
+        np.ascontiguousarray((tab.width[present] > 0).any(axis=0)),
+        np.ascontiguousarray(weights, np.float32),
+        int(stride),
+        int(size),
+        int(first),
+        int(span),
+        -1 if jitter_key is None else int(jitter_key),
+        -1.0 if depth_slope is None else float(depth_slope),
+        (-tab.inv2tau).astype(np.float32),
+        bool(linear),
+        out,
+    )
+    src = np.ascontiguousarray(src, np.float32)
+    for c0 in range(0, src.shape[1], 3):
+        counted = core if c0 == 0 else np.zeros(p_count, bool)
+        fallback += separable_pass(src, c0, int(reps), *args, counted, *tables).sum()
+    return out, int(fallback)
+
+
 def apply(
     frame,
     profile: Profile,
@@ -254,6 +336,7 @@ def apply(
     seed: int = 0,
     depth_slope: float = 2.0,
     geom: Geometry | None = None,
+    backend: str = "numpy",
 ) -> tuple[Geometry, np.ndarray, dict]:
     """Separable SSS of one frame.
 
@@ -266,6 +349,9 @@ def apply(
     seed : int, jitter stream (with the frame number)
     depth_slope : float, bilateral tolerance of ``follow="slope"`` (SSSParams.depth_slope)
     geom : Geometry from :func:`cvsss.core.geometry.prepare`, optional
+    backend : one of core.params.BACKENDS: the passes' implementation (NumPy's
+        :func:`_one_pass`, or :func:`_compiled_pass` where it resolves to numba; the
+        same values, see there)
 
     Returns
     -------
@@ -296,7 +382,12 @@ def apply(
     tab = _stack(kernels, profile.n_slots, params)
     px = _pixels(geom)
     hgt, wid = geom.shape
-    light = np.ascontiguousarray(frame.lighting.reshape(-1, 3).T, dtype=np.float32)
+    fast = compiled(backend)
+    lighting = frame.lighting.reshape(-1, 3)
+    if fast:  # pixel-major: a read's channels share a cache line
+        light = np.ascontiguousarray(lighting, dtype=np.float32)
+    else:
+        light = np.ascontiguousarray(lighting.T, dtype=np.float32)
     depth_flat = frame.depth.reshape(-1).astype(np.float32)
     mat_flat = geom.slots
     key = None
@@ -305,12 +396,17 @@ def apply(
     t0 = time.perf_counter()
     slope = depth_slope if params.follow == "slope" else None
     linear = params.filter == "linear"
-    first, fb1 = _one_pass(
+    one_pass = _compiled_pass if fast else _one_pass
+    first, fb1 = one_pass(
         light, px, geom.shape, depth_flat, mat_flat, tab, tab.h, 0, key, slope, linear
     )
-    inter = np.zeros((3 * j, hgt * wid), np.float32)
-    inter[:, px.index] = first
-    second, fb2 = _one_pass(
+    if fast:
+        inter = np.zeros((hgt * wid, 3 * j), np.float32)
+        inter[px.index] = first
+    else:
+        inter = np.zeros((3 * j, hgt * wid), np.float32)
+        inter[:, px.index] = first
+    second, fb2 = one_pass(
         inter,
         px,
         geom.shape,
@@ -323,6 +419,8 @@ def apply(
         slope,
         linear,
     )
+    if fast:
+        second = second.T
     pass_ms = (time.perf_counter() - t0) * 1e3
     shaded = np.empty((geom.size, 3))
     shaded[px.order] = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64).T

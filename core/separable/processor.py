@@ -64,6 +64,7 @@ class SeparableProcessor:
             depth_slope=self.params.depth_slope,
             # A still scene (only the lights change) reuses the last frame's Geometry.
             geom=self._geometry.prepare(frame, profile, backend=self.params.backend),
+            backend=self.params.backend,
         )
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)
         return assemble(
