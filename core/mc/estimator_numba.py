@@ -1087,8 +1087,8 @@ def warm_up(pixels: int | None = None) -> None:
     for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
         fetch(np.zeros(1, dtype), at, yes)
     # The separable passes (the separable method, the temporal proxy) and the temporal
-    # reuse's neighbourhood, in the argument types core.separable.apply and
-    # core.mc.temporal pass.
+    # reuse's neighbourhood and per-pixel steps, in the argument types
+    # core.separable.apply and core.mc.temporal pass.
     f32 = np.float32
     pix = (at, at, at, np.ones(1, np.int32), one32, at, at, one32)
     tables = (np.ones(1, f32), np.ones(1, np.int32), np.zeros((2, 3)), np.zeros((2, 3)))
@@ -1099,6 +1099,11 @@ def warm_up(pixels: int | None = None) -> None:
             np.zeros((1, 3), f32),
         )  # fmt: skip
     neighbourhood_pass(g3, yes, at, np.ones(1, np.int32), at, 1, 1, g3.copy(), g3.copy())
+    rgb = [np.ones((1, 3)) for _ in range(8)]
+    reuse_start(*rgb[:2], one, rgb[2], one, yes, *rgb[3:5], np.ones(3), MULTIPLICATIVE, 0.2, 0.3,
+                *rgb[5:7], one.copy())  # fmt: skip
+    reuse_finish(*rgb[:4], one, yes, *rgb[4:6], 2.0, one, 1e-12, MULTIPLICATIVE, True, 2.0, 0.1,
+                 *rgb[6:8], one.copy())  # fmt: skip
 
 
 def _warm(fn) -> None:
@@ -1829,38 +1834,44 @@ def separable_pass(
     one = np.float32(1.0)
     zero = np.float32(0.0)
     inf = np.float32(np.inf)
+    u0 = np.uint64(c0)
+    u1 = np.uint64(c0 + 1)
+    u2 = np.uint64(c0 + 2)
     for t in numba.prange(n_tasks):
         nfb = 0
         for k in range(t * _ROW_TASK, min(n_pix, (t + 1) * _ROW_TASK)):
             s = mat[k]
-            ck = index[k]
+            # Unsigned indices: numba emits no negative-index wrap-around per read.
+            us = np.uint64(s)
+            ck = np.uint64(index[k])
             zk = z[k]
             sk = scale[k]
             ci = coord_i[k]
             cf = np.float32(ci)
             bk = base[k]
             counted = core[k]
-            b0 = src[ck, c0]
-            b1 = src[ck, c0 + 1]
-            b2 = src[ck, c0 + 2]
+            b0 = src[ck, u0]
+            b1 = src[ck, u1]
+            b2 = src[ck, u2]
             # The sums of a single group stay in registers (out starts at 0, as there).
             a0 = a1 = a2 = zero
             for i in range(n):
+                ui = np.uint64(i)
                 if i == half:
                     v0 = b0
                     v1 = b1
                     v2 = b2
                 else:
-                    pos = np.float32(offsets[s, i])
+                    pos = np.float32(offsets[us, ui])
                     if jittered[i] and key >= 0:
-                        hx = _pcg3d_x(
+                        hx, _ = _pcg3d_xy(
                             np.uint64(px[k]) & _M32,
                             np.uint64(py[k]) & _M32,
                             np.uint64(key * 67 + i) & _M32,
                         )
                         jit = np.float32(np.float64(hx) * np.float64(_INV_2_32_F32))
                         jit = jit - np.float32(0.5)
-                        jit = jit * np.float32(width[s, i])
+                        jit = jit * np.float32(width[us, ui])
                         pos = pos + jit
                     pos = pos * sk
                     pos = pos + cf
@@ -1881,12 +1892,12 @@ def separable_pass(
                             local = pc - first
                             outside = local < 0 or local >= span
                             local = min(max(local, 0), span - 1)
-                        q = local * stride + bk
+                        q = np.uint64(local * stride + bk)
                         d = depth_flat[q] if mat_flat[q] == s else inf
                         wz = d - zk
                         if slope < 0:
                             wz = wz * wz
-                            wz = wz * neg_inv2tau[s]
+                            wz = wz * neg_inv2tau[us]
                             wz = np.exp(wz)
                         else:
                             dist = np.float64(abs(p - ci))
@@ -1897,16 +1908,16 @@ def separable_pass(
                             nfb += 1
                         if linear:
                             wz = wz * ((one - fr) if r == 0 else fr)
-                        v0 = v0 + (src[q, c0] - b0) * wz
-                        v1 = v1 + (src[q, c0 + 1] - b1) * wz
-                        v2 = v2 + (src[q, c0 + 2] - b2) * wz
+                        v0 = v0 + (src[q, u0] - b0) * wz
+                        v1 = v1 + (src[q, u1] - b1) * wz
+                        v2 = v2 + (src[q, u2] - b2) * wz
                     v0 = v0 + b0
                     v1 = v1 + b1
                     v2 = v2 + b2
                 if reps == 1:
-                    a0 = a0 + weights[s, i, c0] * v0
-                    a1 = a1 + weights[s, i, c0 + 1] * v1
-                    a2 = a2 + weights[s, i, c0 + 2] * v2
+                    a0 = a0 + weights[us, ui, u0] * v0
+                    a1 = a1 + weights[us, ui, u1] * v1
+                    a2 = a2 + weights[us, ui, u2] * v2
                 else:
                     for rep in range(reps):
                         o = c0 + 3 * rep
@@ -1919,21 +1930,6 @@ def separable_pass(
                 out[k, c0 + 2] = a2
         fallback[t] = nfb
     return fallback
-
-
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _pcg3d_x(x, y, z):
-    """The first word of :func:`core.sampling.sequence.pcg3d` (as :func:`_pcg3d_xy`)."""
-    vx = (x * _LCG_A + _LCG_C) & _M32
-    vy = (y * _LCG_A + _LCG_C) & _M32
-    vz = (z * _LCG_A + _LCG_C) & _M32
-    vx = (vx + vy * vz) & _M32
-    vy = (vy + vz * vx) & _M32
-    vz = (vz + vx * vy) & _M32
-    vx ^= vx >> _S16
-    vy ^= vy >> _S16
-    vz ^= vz >> _S16
-    return (vx + vy * vz) & _M32
 
 
 # -- the temporal reuse's neighbourhood (core.mc.temporal) -----------------------------
@@ -1987,3 +1983,141 @@ def neighbourhood_pass(values, active, index, mat, where, w, h, mean, std):
         std[k, 0] = np.sqrt(max(q0 / nn - m0 * m0, 0.0))
         std[k, 1] = np.sqrt(max(q1 / nn - m1 * m1, 0.0))
         std[k, 2] = np.sqrt(max(q2 / nn - m2 * m2, 0.0))
+
+
+# -- the temporal reuse's per-pixel arithmetic (core.mc.temporal.reuse) ----------------
+#: Temporal modes of the reuse kernels.
+PLAIN, SUBTRACTIVE, MULTIPLICATIVE = 0, 1, 2
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _pos(x):
+    """np.maximum(x, 0.0) of one value (NaN stays NaN)."""
+    return x if (np.isnan(x) or x > 0.0) else 0.0
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def reuse_start(
+    distant, control, alpha, proxy, n_prev, active, ctl_prev, prox_prev, eps, mode, switch,
+    tolerance, shift, value, n_out,
+):  # fmt: skip
+    """The reuse's first per-pixel step (:func:`core.mc.temporal.reuse` up to the
+    neighbourhood clamp): the shift and the value accumulated, and the frame count cut
+    by the rectification δ, in float64 with reuse's operations (``log`` and ``exp`` are
+    libm's: within an ulp of NumPy's).
+
+    Parameters
+    ----------
+    distant, control : (P, 3) float64; alpha : (P,) float64; proxy : (P, 3) float64
+        (read in the multiplicative mode only); n_prev : (P,) float64, the history's frame
+        count; active : (P,) bool; ctl_prev, prox_prev : (P, 3) float64, the history's
+        control and proxy (read in the guided modes); eps : (3,) float64
+    mode : PLAIN, SUBTRACTIVE or MULTIPLICATIVE; switch : float, SWITCH_WEIGHT;
+        tolerance : float, τ
+    shift, value : (P, 3) float64, written (shift: 0 in the plain mode)
+    n_out : (P,) float64, written: the frame count after the cut
+    """
+    for k in numba.prange(distant.shape[0]):
+        worst = -np.inf
+        nan = False
+        for c in range(3):
+            e = eps[c]
+            if mode == MULTIPLICATIVE:
+                sh = _pos(proxy[k, c]) + e
+                value[k, c] = distant[k, c] / sh
+            elif mode == SUBTRACTIVE:
+                sh = alpha[k] * control[k, c]
+                value[k, c] = distant[k, c] - sh
+            else:
+                sh = 0.0
+                value[k, c] = distant[k, c]
+            shift[k, c] = sh
+            if mode != PLAIN:
+                d_ctl = np.log(control[k, c] + e) - np.log(_pos(ctl_prev[k, c]) + e)
+                if mode == MULTIPLICATIVE:
+                    d_prox = np.log(sh) - np.log(_pos(prox_prev[k, c]) + e)
+                    delta = abs(d_prox - d_ctl) + switch * abs(d_ctl)
+                else:
+                    delta = abs(d_ctl)
+                if np.isnan(delta):
+                    nan = True
+                elif delta > worst:
+                    worst = delta
+        n = n_prev[k] if active[k] else 0.0
+        if mode != PLAIN:
+            # NumPy's max over channels propagates NaN; nan_to_num makes it +inf.
+            d = np.inf if nan else worst
+            r = d / tolerance
+            n = n * np.exp(-(r * r))
+        n_out[k] = n
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _clip(x, lo, hi):
+    """np.clip of one value: NaN where any of the three is NaN."""
+    if np.isnan(x) or np.isnan(lo) or np.isnan(hi):
+        return np.nan
+    return min(max(x, lo), hi)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def reuse_finish(
+    distant, prev, value, shift, n_in, active, mean, std, clamp, sigma, floor, mode,
+    use_noise, noise_sigmas, min_weight, acc, out, n_new,
+):  # fmt: skip
+    """The reuse's last per-pixel step (:func:`core.mc.temporal.reuse` from the clamp on):
+    the clamped history, the noise test's cut, λ, the accumulation and the output.
+
+    Parameters
+    ----------
+    distant, prev, value, shift : (P, 3) float64 (prev: the history's accumulation)
+    n_in : (P,) float64, the frame count after :func:`reuse_start`; active : (P,) bool
+    mean, std : (P, 3) float64, the neighbourhood of ``value`` (with ``clamp`` finite)
+    clamp : float, k (inf: no clamp); sigma : (P,) float64, the pooled noise (with
+        ``use_noise``); floor : float, its lower bound 1e-12·(scale·Y)
+    mode : PLAIN, SUBTRACTIVE or MULTIPLICATIVE; use_noise : bool (guided modes with a
+        noise estimate); noise_sigmas : float; min_weight : float, λ_min
+    acc, out : (P, 3) float64, written; n_new : (P,) float64, written
+    """
+    finite_clamp = np.isfinite(clamp)
+    for k in numba.prange(distant.shape[0]):
+        p0 = prev[k, 0]
+        p1 = prev[k, 1]
+        p2 = prev[k, 2]
+        if finite_clamp:
+            p0 = _clip(p0, mean[k, 0] - clamp * std[k, 0], mean[k, 0] + clamp * std[k, 0])
+            p1 = _clip(p1, mean[k, 1] - clamp * std[k, 1], mean[k, 1] + clamp * std[k, 1])
+            p2 = _clip(p2, mean[k, 2] - clamp * std[k, 2], mean[k, 2] + clamp * std[k, 2])
+        n = n_in[k]
+        if use_noise:
+            if mode == MULTIPLICATIVE:
+                g0 = p0 * shift[k, 0] - distant[k, 0]
+                g1 = p1 * shift[k, 1] - distant[k, 1]
+                g2 = p2 * shift[k, 2] - distant[k, 2]
+            else:
+                g0 = p0 + shift[k, 0] - distant[k, 0]
+                g1 = p1 + shift[k, 1] - distant[k, 1]
+                g2 = p2 + shift[k, 2] - distant[k, 2]
+            gap = abs(g0 * _R0 + g1 * _R1 + g2 * _R2)
+            z = gap / max(sigma[k], floor)
+            if np.isnan(z):
+                z = np.inf
+            m = max(z - noise_sigmas, 0.0)
+            n = n * np.exp(-0.5 * (m * m))
+        r = 1.0 / (n + 1.0)
+        lam = r if (np.isnan(r) or r > min_weight) else min_weight
+        on = active[k]
+        ps = (p0, p1, p2)
+        for c in range(3):
+            a = (1.0 - lam) * ps[c] + lam * value[k, c] if on else value[k, c]
+            acc[k, c] = a
+            if not on:
+                o = distant[k, c]
+            elif mode == MULTIPLICATIVE:
+                o = a * shift[k, c]
+            elif mode == SUBTRACTIVE:
+                o = a + shift[k, c]
+            else:
+                o = a
+            out[k, c] = o
+        n_new[k] = n + 1.0 if on else 0.0

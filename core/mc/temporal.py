@@ -193,8 +193,9 @@ def reuse(
         ε = 1e-3·scale keeps the logarithms and ratios finite on black pixels.
         Default: the mean of ``control`` over these pixels (a tile must pass
         its whole image's).
-    backend : one of core.params.BACKENDS, for the neighbourhood statistics
-        (:func:`neighbourhood`; the same values on either)
+    backend : one of core.params.BACKENDS; where it resolves to numba the per-pixel
+        arithmetic and the neighbourhood statistics are compiled passes
+        (:func:`_step_compiled`; the same values within an ulp of ``log``/``exp``)
 
     Returns
     -------
@@ -208,6 +209,50 @@ def reuse(
         scale = control.mean(axis=0) if control.size else np.zeros(3)
     scale = np.maximum(np.asarray(scale, dtype=np.float64), 1e-12)
     eps = 1e-3 * scale  # per channel, relative to the frame's lighting
+    n = hist.read("acc_n", idx)
+    prev = _read3(hist, _ACC, idx)
+    ctl_prev = _read3(hist, _CTL, idx) if mode != "plain" else None
+    prox_prev = _read3(hist, _PROX, idx) if mode == "multiplicative" else None
+    step = _step_compiled if compiled(backend) else _step
+    acc, out, n_new = step(
+        geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps,
+        mode=mode, min_weight=min_weight, clamp=clamp, tolerance=tolerance, noise=noise,
+        floor=1e-12 * scale @ _Y, backend=backend,
+    )  # fmt: skip
+    _write3(hist, _ACC, idx, acc)
+    hist.write("acc_n", idx, n_new)
+    if mode != "plain":
+        _write3(hist, _CTL, idx, control)
+    if mode == "multiplicative":
+        _write3(hist, _PROX, idx, np.maximum(proxy, 0.0))
+    return out, n_new
+
+
+def _pooled_sigma(
+    geom: Geometry, noise: np.ndarray, active: np.ndarray, backend: str
+) -> np.ndarray:
+    """(P,) the estimate's noise (standard deviation of its luminance) pooled over the
+    3×3 neighbourhood (same material) as variance; inf where not finite."""
+    # The spread of a handful of samples is itself noisy: pool it before using it as
+    # the yardstick.
+    var = np.nan_to_num(np.asarray(noise, dtype=np.float64) ** 2, posinf=np.inf)
+    finite = np.isfinite(var)
+    pooled, _ = neighbourhood(
+        geom, np.repeat(np.where(finite, var, 0.0)[:, None], 3, 1), active & finite, backend
+    )
+    return np.where(finite, np.sqrt(pooled[:, 0]), np.inf)
+
+
+def _step(
+    geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps, *,
+    mode, min_weight, clamp, tolerance, noise, floor, backend,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The reuse's arithmetic on arrays: (acc, out, n_new), see :func:`reuse`.
+
+    ``n``, ``prev``, ``ctl_prev``, ``prox_prev``: the history's frame count (P,),
+    accumulation, control and proxy (P, 3) (None where the mode has none); ``floor``:
+    the noise yardstick's lower bound, 1e-12 of the scale's luminance.
+    """
     if mode == "multiplicative":
         shift = np.maximum(proxy, 0.0) + eps
         value = distant / shift
@@ -217,15 +262,11 @@ def reuse(
     else:
         shift = None
         value = distant
-    n = hist.read("acc_n", idx)
     n = np.where(active, n, 0.0)
-    prev = _read3(hist, _ACC, idx)
     if mode != "plain":
-        ctl_prev = _read3(hist, _CTL, idx)
         with np.errstate(divide="ignore", invalid="ignore"):
             d_ctl = np.log(control + eps) - np.log(np.maximum(ctl_prev, 0.0) + eps)
             if mode == "multiplicative":
-                prox_prev = _read3(hist, _PROX, idx)
                 d_prox = np.log(shift) - np.log(np.maximum(prox_prev, 0.0) + eps)
                 delta = np.abs(d_prox - d_ctl) + SWITCH_WEIGHT * np.abs(d_ctl)
             else:
@@ -241,31 +282,63 @@ def reuse(
         # (a shadow passing, a light switched) shows as many sigmas.
         predicted = prev * shift if mode == "multiplicative" else prev + shift
         gap = np.abs((predicted - distant) @ _Y)
-        # The spread of a handful of samples is itself noisy: pool it over the 3×3
-        # neighbourhood (same material) before using it as the yardstick.
-        var = np.nan_to_num(np.asarray(noise, dtype=np.float64) ** 2, posinf=np.inf)
-        finite = np.isfinite(var)
-        pooled, _ = neighbourhood(
-            geom, np.repeat(np.where(finite, var, 0.0)[:, None], 3, 1), active & finite, backend
-        )
-        sigma = np.where(finite, np.sqrt(pooled[:, 0]), np.inf)
+        sigma = _pooled_sigma(geom, noise, active, backend)
         with np.errstate(divide="ignore", invalid="ignore"):
-            z = gap / np.maximum(sigma, 1e-12 * scale @ _Y)
+            z = gap / np.maximum(sigma, floor)
         n = n * np.exp(-0.5 * np.maximum(np.nan_to_num(z, nan=np.inf) - NOISE_SIGMAS, 0.0) ** 2)
     lam = np.maximum(min_weight, 1.0 / (n + 1.0))
     acc = (1.0 - lam)[:, None] * prev + lam[:, None] * value
     acc = np.where(active[:, None], acc, value)
     n_new = np.where(active, n + 1.0, 0.0)
-    _write3(hist, _ACC, idx, acc)
-    hist.write("acc_n", idx, n_new)
-    if mode != "plain":
-        _write3(hist, _CTL, idx, control)
-    if mode == "multiplicative":
-        _write3(hist, _PROX, idx, np.maximum(proxy, 0.0))
     if mode == "multiplicative":
         out = acc * shift
     elif mode == "subtractive":
         out = acc + shift
     else:
         out = acc
-    return np.where(active[:, None], out, distant), n_new
+    return acc, np.where(active[:, None], out, distant), n_new
+
+
+def _step_compiled(
+    geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps, *,
+    mode, min_weight, clamp, tolerance, noise, floor, backend,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`_step` as two compiled per-pixel passes around the neighbourhoods
+    (:func:`core.mc.estimator_numba.reuse_start`, ``reuse_finish``): the same float64
+    operations, with libm's ``log`` and ``exp`` (an ulp from NumPy's) and the
+    luminance summed in channel order (a matrix product's order is the BLAS's)."""
+    from . import estimator_numba as kernels
+
+    p = geom.size
+    f64 = np.float64
+    code = {
+        "plain": kernels.PLAIN,
+        "subtractive": kernels.SUBTRACTIVE,
+        "multiplicative": kernels.MULTIPLICATIVE,
+    }[mode]
+    none3 = np.zeros((0, 3))
+    shift, value = np.empty((p, 3)), np.empty((p, 3))
+    n_cut = np.empty(p)
+    active = np.ascontiguousarray(active, bool)
+    distant = np.ascontiguousarray(distant, f64)
+    kernels.reuse_start(
+        distant, np.ascontiguousarray(control, f64), np.ascontiguousarray(alpha, f64),
+        none3 if proxy is None else np.ascontiguousarray(proxy, f64),
+        np.ascontiguousarray(n, f64), active,
+        none3 if ctl_prev is None else np.ascontiguousarray(ctl_prev, f64),
+        none3 if prox_prev is None else np.ascontiguousarray(prox_prev, f64),
+        np.ascontiguousarray(eps, f64), code, float(SWITCH_WEIGHT), float(tolerance),
+        shift, value, n_cut,
+    )  # fmt: skip
+    mean = std = none3
+    if np.isfinite(clamp):
+        mean, std = neighbourhood(geom, value, active, backend)
+    use_noise = mode != "plain" and noise is not None
+    sigma = _pooled_sigma(geom, noise, active, backend) if use_noise else np.zeros(0)
+    acc, out, n_new = np.empty((p, 3)), np.empty((p, 3)), np.empty(p)
+    kernels.reuse_finish(
+        distant, np.ascontiguousarray(prev, f64), value, shift, n_cut, active, mean, std,
+        float(clamp), sigma, float(floor), code, use_noise, float(NOISE_SIGMAS),
+        float(min_weight), acc, out, n_new,
+    )  # fmt: skip
+    return acc, out, n_new
