@@ -1756,7 +1756,7 @@ def _fetch_pass(values, src, keep, out):
 
 
 # -- the separable passes (core.separable.apply) ---------------------------------------
-#: Pixels per parallel task of the separable and neighbourhood passes.
+#: Pixels per parallel task of the separable passes.
 _ROW_TASK = 1024
 _INV_2_32_F32 = np.float32(2.0**-32)
 
