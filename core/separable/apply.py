@@ -320,10 +320,12 @@ def _compiled_pass(
         bool(linear),
         out,
     )
+    # One build per follow rule (estimator_numba.separable_pass).
+    one_pass = separable_pass(depth_slope is None)
     src = np.ascontiguousarray(src, np.float32)
     for c0 in range(0, src.shape[1], 3):
         counted = core if c0 == 0 else np.zeros(p_count, bool)
-        fallback += separable_pass(src, c0, int(reps), *args, counted, *tables).sum()
+        fallback += one_pass(src, c0, int(reps), *args, counted, *tables).sum()
     return out, int(fallback)
 
 
