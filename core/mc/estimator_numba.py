@@ -1098,7 +1098,8 @@ def warm_up(pixels: int | None = None) -> None:
             np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True,
             np.zeros((1, 3), f32),
         )  # fmt: skip
-    neighbourhood_pass(g3, yes, at, np.ones(1, np.int32), at, 1, 1, g3.copy(), g3.copy())
+    table = neighbour_table(at, np.ones(1, np.int32), at, 1, 1)
+    neighbourhood_pass(g3, yes, table, g3.copy(), g3.copy())
     rgb = [np.ones((1, 3)) for _ in range(8)]
     reuse_start(*rgb[:2], one, rgb[2], one, yes, *rgb[3:5], np.ones(3), MULTIPLICATIVE, 0.2, 0.3,
                 *rgb[5:7], one.copy())  # fmt: skip
@@ -2011,45 +2012,75 @@ def separable_pass(exponential: bool):
 
 # -- the temporal reuse's neighbourhood (core.mc.temporal) -----------------------------
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def neighbourhood_pass(values, active, index, mat, where, w, h, mean, std):
-    """Mean and standard deviation over each pixel's 3×3 neighbours of the same slot
-    holding a value (:func:`core.mc.temporal.neighbourhood`, its float64 operations in
-    its order).
+def neighbour_table(index, mat, where, w, h):
+    """Each pixel's 3×3 neighbours of the same slot, for :func:`neighbourhood_pass`.
 
     Parameters
     ----------
-    values : (P, 3) float64; active : (P,) bool; index : (P,) int64 flat pixel;
-    mat : (P,) int32 slot; where : (H·W,) int64, the Geometry pixel at each frame
-        pixel (−1: none); w, h : int, the frame's size
-    mean, std : (P, 3) float64, written
+    index : (P,) int64 flat pixel; mat : (P,) int32 slot; where : (H·W,) int64, the
+        Geometry pixel at each frame pixel (−1: none); w, h : int, the frame's size
+
+    Returns
+    -------
+    (P, 9) int32, the Geometry pixel of each neighbour, row by row from (−1, −1) to
+    (+1, +1) (the pixel itself fifth); −1 off the frame, on no SSS pixel or on
+    another slot
     """
     n_pix = index.shape[0]
+    out = np.empty((n_pix, 9), np.int32)
     for k in numba.prange(n_pix):
         y = index[k] // w
         x = index[k] - y * w
-        t0 = t1 = t2 = 0.0
-        q0 = q1 = q2 = 0.0
-        count = 0.0
+        e = 0
         for dy in range(-1, 2):
             for dx in range(-1, 2):
                 xx = x + dx
                 yy = y + dy
-                v0 = v1 = v2 = 0.0
-                ok = False
+                j = -1
                 if xx >= 0 and xx < w and yy >= 0 and yy < h:
                     j = where[yy * w + xx]
-                    if j >= 0 and active[j] and mat[j] == mat[k] and not np.isnan(values[j, 0]):
-                        ok = True
-                        v0 = values[j, 0]
-                        v1 = values[j, 1]
-                        v2 = values[j, 2]
-                t0 += v0
-                t1 += v1
-                t2 += v2
-                q0 += v0 * v0
-                q1 += v1 * v1
-                q2 += v2 * v2
-                count += 1.0 if ok else 0.0
+                    if j >= 0 and mat[j] != mat[k]:
+                        j = -1
+                out[k, e] = j
+                e += 1
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def neighbourhood_pass(values, active, table, mean, std):
+    """Mean and standard deviation over each pixel's 3×3 neighbours of the same slot
+    holding a value (:func:`core.mc.temporal.neighbourhood`, its float64 operations in
+    its order: a neighbour without a value adds 0).
+
+    Parameters
+    ----------
+    values : (P, 3) float64; active : (P,) bool
+    table : (P, 9) int32, :func:`neighbour_table` (a still scene's Geometry keeps it)
+    mean, std : (P, 3) float64, written
+    """
+    n_pix = table.shape[0]
+    for k in numba.prange(n_pix):
+        t0 = t1 = t2 = 0.0
+        q0 = q1 = q2 = 0.0
+        count = 0.0
+        for e in range(9):
+            j = table[k, e]
+            v0 = v1 = v2 = 0.0
+            ok = False
+            if j >= 0:
+                uj = np.uint64(j)
+                if active[uj] and not np.isnan(values[uj, 0]):
+                    ok = True
+                    v0 = values[uj, 0]
+                    v1 = values[uj, 1]
+                    v2 = values[uj, 2]
+            t0 += v0
+            t1 += v1
+            t2 += v2
+            q0 += v0 * v0
+            q1 += v1 * v1
+            q2 += v2 * v2
+            count += 1.0 if ok else 0.0
         nn = max(count, 1.0)
         m0 = t0 / nn
         m1 = t1 / nn

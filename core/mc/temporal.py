@@ -102,18 +102,26 @@ def neighbourhood(
     """
     h, w = geom.shape
     if compiled(backend):
-        from .estimator_numba import neighbourhood_pass
+        from .estimator_numba import neighbour_table, neighbourhood_pass
 
         mean = np.empty((geom.size, 3))
         std = np.empty((geom.size, 3))
+        # Which neighbours share the pixel's slot depends on the Geometry alone: made
+        # once, kept with it (a still scene's next frames reuse it).
+        table = geom.memo(
+            "neighbours",
+            lambda: neighbour_table(
+                np.ascontiguousarray(geom.index, np.int64),
+                np.ascontiguousarray(geom.mat, np.int32),
+                _pixel_at(geom),
+                int(w),
+                int(h),
+            ),
+        )
         neighbourhood_pass(
             np.ascontiguousarray(values, np.float64),
             np.ascontiguousarray(active, bool),
-            np.ascontiguousarray(geom.index, np.int64),
-            np.ascontiguousarray(geom.mat, np.int32),
-            geom.memo("pixel_at", lambda: _pixel_at(geom)),
-            int(w),
-            int(h),
+            table,
             mean,
             std,
         )

@@ -382,7 +382,8 @@ def apply(
         )
     j = params.terms
     tab = _stack(kernels, profile.n_slots, params)
-    px = _pixels(geom)
+    # The sorted pixels depend on the Geometry alone (a still scene's frames share it).
+    px = geom.memo("separable_pixels", lambda: _pixels(geom))
     hgt, wid = geom.shape
     fast = compiled(backend)
     lighting = frame.lighting.reshape(-1, 3)
