@@ -231,3 +231,32 @@ def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
         geom = cache.prepare(base, profile, surface_distance=True)
     assert cache.hits == 2 and len(cache._entries) == 1
     assert _geometry_fields_equal(geom, prepare(base, profile, surface_distance=True))
+
+
+def test_light_scale_from_the_geometry_equals_the_frames_own():
+    """The temporal reuse's light scale read from the whole frame's Geometry equals the
+    one found from the frame's passes bit for bit: background (infinite depth), pixels
+    without subsurface and an unknown material index are left out by both."""
+    import dataclasses
+
+    from cvsss.core.geometry import light_scale, prepare
+    from cvsss.core.params import SSSParams
+    from cvsss.core.profiles.factory import ProfileCache
+    from cvsss.core.synthetic import scene_frame
+
+    f = scene_frame("flash", 2, 48, 32)
+    material = f.material.copy()
+    material[:, :6] = 0  # no subsurface
+    material[:4, 10:20] = 99  # no such material
+    depth = f.depth.copy()
+    depth[-5:, 30:] = np.inf  # background
+    f = dataclasses.replace(f, material=material, depth=depth)
+    profile = ProfileCache(SSSParams()).get(f)
+    geom = prepare(f, profile)
+    assert 0 < geom.size < material.size
+    own = light_scale(f, profile)
+    from_geom = light_scale(f, profile, geom)
+    assert from_geom.dtype == np.float64 and from_geom.shape == (3,)
+    assert np.array_equal(own.view(np.uint64), from_geom.view(np.uint64))
+    # The selection matters: the mean over every pixel differs.
+    assert not np.allclose(own, f.lighting.reshape(-1, 3).mean(axis=0, dtype=np.float64))
