@@ -651,11 +651,14 @@ def run(argv: list[str] | None = None) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: turns user errors into one line on stderr and exit status 2."""
     from ...core.io.errors import CheckpointError, OutputError, PassError
+    from .heap import keep_freed_memory
 
     if argv is None:
         argv = sys.argv[1:]
         if "--" in argv:  # blender -b … --python main.py -- <args>
             argv = argv[argv.index("--") + 1 :]
+    # A frame's large arrays reuse the last frame's freed memory (glibc; see .heap).
+    keep_freed_memory()
     try:
         return run(argv)
     except ParameterError as exc:
