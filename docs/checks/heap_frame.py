@@ -16,9 +16,8 @@ import argparse
 import resource
 import time
 
-from cvsss.core.methods import make_processor
-from cvsss.core.params import SSSParams
-from cvsss.core.synthetic import scene_frame
+from shared import steady_processor
+
 from cvsss.sss_addon.cli.heap import keep_freed_memory
 
 
@@ -31,15 +30,11 @@ def main() -> None:
     a = ap.parse_args()
     kept = keep_freed_memory() if a.keep else False
     w, h = (int(v) for v in a.size.split("x"))
-    frames = [scene_frame("flash", n, w, h) for n in range(1, 8)]
-    proc = make_processor(a.method, SSSParams(backend="numba"))
-    for f in frames[:6]:
-        proc.process(f)
-    state = proc.state()
+    proc, state, frame = steady_processor((w, h), a.method)
     r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
     for _ in range(a.calls):
         proc.restore(state)
-        proc.process(frames[6])
+        proc.process(frame)
     r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
     n = a.calls
     print(

@@ -39,6 +39,18 @@ def steady(
     return frames[-1], proc.profiles.get(frames[-1]), result
 
 
+def steady_processor(size: tuple[int, int], method: str, number: int = 7) -> tuple:
+    """A processor of ``method`` on the compiled backend after frames 1…``number`` − 1 of
+    the flash sequence (``core.synthetic``) at ``size`` (W, H pixels): ``(processor, its
+    state, frame number)``, to time that frame from the same state again and again."""
+    w, h = size
+    frames = [scene_frame("flash", n, w, h) for n in range(1, number + 1)]
+    proc = make_processor(method, SSSParams(backend="numba"))
+    for f in frames[:-1]:
+        proc.process(f)
+    return proc, proc.state(), frames[-1]
+
+
 def steady_geometry(
     size: tuple[int, int], params: SSSParams, number: int = 3
 ) -> tuple[Frame, object, Geometry, np.ndarray]:

@@ -23,11 +23,9 @@ import argparse
 import time
 
 import numpy as np
+from shared import steady_processor
 
 import cvsss
-from cvsss.core.methods import make_processor
-from cvsss.core.params import SSSParams
-from cvsss.core.synthetic import scene_frame
 
 
 def stats(values) -> str:
@@ -41,16 +39,12 @@ def main() -> None:
     ap.add_argument("--method", default="as_ccv")
     a = ap.parse_args()
     w, h = (int(v) for v in a.size.split("x"))
-    frames = [scene_frame("flash", n, w, h) for n in range(1, 8)]
-    proc = make_processor(a.method, SSSParams(backend="numba"))
-    for f in frames[:6]:
-        proc.process(f)
-    state = proc.state()
+    proc, state, frame = steady_processor((w, h), a.method)
     total, sampling, update, rest = [], [], [], []
     for _ in range(a.calls):
         proc.restore(state)
         t = time.perf_counter()
-        res = proc.process(frames[6])
+        res = proc.process(frame)
         total.append((time.perf_counter() - t) * 1e3)
         sampling.append(res.pass_ms)
         update.append(res.update_ms)
