@@ -9,8 +9,9 @@ page faults and 115-175 ms of system CPU time per steady ``as_ccv_t`` frame on
 the bench's flash scene. :func:`keep_freed_memory` raises both thresholds, so
 the freed blocks serve the next frame: 435-609 page faults and 32-47 ms of
 system time per frame, and 1-16 % less wall time per frame (median 12 %) in six
-alternating pairs of runs (``docs/checks/heap_frame.py``); frames that churn
-less (``as_ccv``) neither gain nor lose. The process's peak resident memory stays the same, but
+alternating pairs of runs (``docs/checks/heap_frame.py``); frames that fault no
+pages (``as_ccv``) read the same within this host's noise (median of 14 runs
+each way: 261 ms without, 264 ms with). The process's peak resident memory stays the same, but
 between frames it no longer falls back.
 
 Linux with glibc only (elsewhere the allocator is another one and this does
