@@ -8,7 +8,10 @@ prints, minimum and median over the calls: the whole call, the sampling step
 whole call minus ``pass_ms``, per call: geometry, counts, history reprojection
 and update, composite and maps). Run from the repo root:
 
-    .venv/bin/python docs/checks/steady_frame.py [WxH] [CALLS] [--method as_ccv]
+    .venv/bin/python docs/checks/steady_frame.py [WxH] [CALLS] [--method as_ccv] [--keep]
+
+``--keep`` first keeps freed memory for the next frame, as the ``cvsss`` command
+does (:func:`sss_addon.cli.heap.keep_freed_memory`).
 
 To compare with another revision, check it out in a worktree and run this
 script (from this checkout) with that worktree first on the import path; run
@@ -37,7 +40,12 @@ def main() -> None:
     ap.add_argument("size", nargs="?", default="1920x1080")
     ap.add_argument("calls", nargs="?", type=int, default=10)
     ap.add_argument("--method", default="as_ccv")
+    ap.add_argument("--keep", action="store_true", help="keep freed memory, as cvsss does")
     a = ap.parse_args()
+    if a.keep:  # imported here: revisions before it have no such module
+        from cvsss.sss_addon.cli.heap import keep_freed_memory
+
+        keep_freed_memory()
     w, h = (int(v) for v in a.size.split("x"))
     proc, state, frame = steady_processor((w, h), a.method)
     total, sampling, update, rest = [], [], [], []
