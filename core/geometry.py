@@ -406,30 +406,27 @@ def take_rows(image: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> n
     return np.take(flat, index, axis=0)
 
 
-def light_scale(frame: Frame, profile: Profile, geom: Geometry | None = None) -> np.ndarray:
+def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) -> np.ndarray:
     """(3,) float64, linear: mean lighting pass over the scattering pixels of ``frame``.
 
     The frame-level yardstick of per-pixel rules (the temporal reuse's ε). A
     crop carries its whole image's value (:attr:`core.frame.Crop.light_scale`)
     so that tiles use the same one; a whole frame computes it here. Floored at
-    1e-12 per channel (a black frame). ``geom``: the whole frame's Geometry
-    (:func:`prepare` of ``frame`` and ``profile``), whose pixels are those same
-    pixels in the same order: their rows are read instead of finding them again
-    (the same value; 32.0 → 17.1 ms at 1920×1080, minimum of 15 calls).
+    1e-12 per channel (a black frame). ``rows``: (P, 3) float64, the lighting at
+    the pixels of the whole frame's Geometry (``geom.at(frame.lighting)`` of
+    :func:`prepare` of ``frame`` and ``profile``), which are those same pixels in
+    the same order: used instead of finding them again (the same value).
     """
     if frame.crop is not None and frame.crop.light_scale is not None:
         return np.asarray(frame.crop.light_scale, dtype=np.float64)
-    if geom is not None and frame.crop is None:
-        lighting = take_rows(frame.lighting, geom.index, geom.shape).astype(np.float64)
-        mean = lighting.mean(axis=0) if lighting.size else np.zeros(3)
-        return np.maximum(mean, 1e-12)
-    slots = compact_slots(frame.material.reshape(-1), slot_keys(frame.materials))
-    scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
-    scatters[: profile.n_slots] = profile.scatters()
-    ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(frame.depth.reshape(-1))
-    ok[ok] = scatters[slots[ok]]
-    lighting = frame.lighting.reshape(-1, 3)[ok].astype(np.float64)
-    mean = lighting.mean(axis=0) if lighting.size else np.zeros(3)
+    if rows is None or frame.crop is not None:
+        slots = compact_slots(frame.material.reshape(-1), slot_keys(frame.materials))
+        scatters = np.zeros(max(profile.n_slots, 1), dtype=bool)
+        scatters[: profile.n_slots] = profile.scatters()
+        ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(frame.depth.reshape(-1))
+        ok[ok] = scatters[slots[ok]]
+        rows = frame.lighting.reshape(-1, 3)[ok].astype(np.float64)
+    mean = rows.mean(axis=0) if rows.size else np.zeros(3)
     return np.maximum(mean, 1e-12)
 
 

@@ -198,7 +198,7 @@ class MonteCarloProcessor:
                     clamp=p.temporal_clamp,
                     tolerance=p.temporal_tolerance,
                     noise=noise,
-                    scale=light_scale(frame, profile, geom),
+                    scale=light_scale(frame, profile, b),
                     backend=p.backend,
                 )
             hist.frame = frame.number

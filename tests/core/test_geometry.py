@@ -234,9 +234,10 @@ def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
 
 
 def test_light_scale_from_the_geometry_equals_the_frames_own():
-    """The temporal reuse's light scale read from the whole frame's Geometry equals the
-    one found from the frame's passes bit for bit: background (infinite depth), pixels
-    without subsurface and an unknown material index are left out by both."""
+    """The temporal reuse's light scale from the lighting at the whole frame's Geometry
+    pixels equals the one found from the frame's passes bit for bit: background
+    (infinite depth), pixels without subsurface and an unknown material index are left
+    out by both."""
     import dataclasses
 
     from cvsss.core.geometry import light_scale, prepare
@@ -255,7 +256,7 @@ def test_light_scale_from_the_geometry_equals_the_frames_own():
     geom = prepare(f, profile)
     assert 0 < geom.size < material.size
     own = light_scale(f, profile)
-    from_geom = light_scale(f, profile, geom)
+    from_geom = light_scale(f, profile, geom.at(f.lighting).astype(np.float64))
     assert from_geom.dtype == np.float64 and from_geom.shape == (3,)
     assert np.array_equal(own.view(np.uint64), from_geom.view(np.uint64))
     # The selection matters: the mean over every pixel differs.
