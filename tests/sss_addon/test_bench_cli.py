@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -95,6 +96,52 @@ def test_rss_worker_runs_as_a_module():
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     assert res["history_mb"] == 0.0  # fixed keeps no history
     assert 10 < res["peak_rss_mb"] < 4096
+
+
+# -- bench: the numba cache -------------------------------------------------------------
+_TOY = "import numba\n\n\n@numba.njit(cache=True)\ndef add_one(x):\n    return x + 1\n"
+
+
+def _toy_stats(src, env) -> str:
+    """Call the toy kernel in a fresh process: numba's compile stats of that call."""
+    code = "import toy_kernel as t; t.add_one(1); s = t.add_one.stats; "
+    code += "print(sum(s.cache_hits.values()), sum(s.cache_misses.values()))"
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=src,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.split()
+
+
+def test_adopted_kernels_load_where_they_would_compile(tmp_path, monkeypatch):
+    # A kernel compiled under one NUMBA_CACHE_DIR (as measure_jit's processes do),
+    # copied into the source's own __pycache__, is loaded from there: no second compile.
+    src, cache = tmp_path / "src", tmp_path / "cache"
+    src.mkdir()
+    (src / "toy_kernel.py").write_text(_TOY, encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    assert _toy_stats(src, {**env, "NUMBA_CACHE_DIR": str(cache)}) == ["0", "1"]  # compiled
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    copied = bench.adopt_compiled(cache, src)
+    assert copied == 2  # its index and its one compiled overload
+    assert _toy_stats(src, env) == ["1", "0"]  # loaded, not compiled
+    # An index already there is never replaced.
+    before = {p.name: p.stat().st_mtime_ns for p in (src / "__pycache__").glob("*.nb*")}
+    assert bench.adopt_compiled(cache, src) == 0
+    after = {p.name: p.stat().st_mtime_ns for p in (src / "__pycache__").glob("*.nb*")}
+    assert after == before
+
+
+def test_adopt_compiled_finds_nothing_to_copy_for_another_folder(tmp_path):
+    (tmp_path / "cache").mkdir()
+    assert bench.adopt_compiled(tmp_path / "cache", tmp_path / "elsewhere") == 0
+    assert not (tmp_path / "elsewhere" / "__pycache__").exists()
 
 
 # -- bench: the whole quick run ----------------------------------------------------------
