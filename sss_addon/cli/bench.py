@@ -296,9 +296,22 @@ def numba_cache_folder(source: Path, cache_dir: Path) -> Path:
     return cache_dir / f"{os.path.basename(folder)}_{digest}"
 
 
+def _stale(index: Path, module: Path) -> bool:
+    """Whether numba cannot use ``index`` for ``module``: it is missing, or was written
+    before the module's source last changed (numba then finds its stamp out of date)."""
+    try:
+        written = index.stat().st_mtime_ns
+    except FileNotFoundError:
+        return True
+    try:
+        return written < module.stat().st_mtime_ns
+    except FileNotFoundError:
+        return False
+
+
 def adopt_compiled(cache_dir: Path, source: Path, target: Path | None = None) -> int:
     """Copy the kernels compiled under the ``NUMBA_CACHE_DIR`` ``cache_dir`` to the
-    cache this process reads, where that has no index of them yet.
+    cache this process reads, where that has no up-to-date index of them.
 
     Parameters
     ----------
@@ -314,9 +327,11 @@ def adopt_compiled(cache_dir: Path, source: Path, target: Path | None = None) ->
 
     A kernel's index (``.nbi``) records the source file's size and modification time,
     not the folder, so numba loads a copied entry exactly where it would load its own,
-    and ignores it once the source changes. An index that is already there is never
-    replaced; each index is written last, after its kernels (``.nbc``), each file
-    atomically, so an interrupted copy leaves no index without its kernels.
+    and ignores it once the source changes. An index already there is replaced only
+    when it is older than its module's source (written before the source last changed,
+    so numba would not load it); each index is written last, after its kernels
+    (``.nbc``), each file atomically, so an interrupted copy leaves no index without
+    its kernels.
     """
     found = numba_cache_folder(source, cache_dir)
     if target is None:
@@ -328,7 +343,7 @@ def adopt_compiled(cache_dir: Path, source: Path, target: Path | None = None) ->
     try:
         target.mkdir(parents=True, exist_ok=True)
         for index in sorted(found.glob("*.nbi")):
-            if (target / index.name).exists():
+            if not _stale(target / index.name, Path(source) / f"{index.name.split('.')[0]}.py"):
                 continue
             stem = index.name[: -len(".nbi")]
             for path in [*sorted(found.glob(f"{glob.escape(stem)}.*.nbc")), index]:

@@ -13,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -99,13 +100,14 @@ def test_rss_worker_runs_as_a_module():
 
 
 # -- bench: the numba cache -------------------------------------------------------------
-_TOY = "import numba\n\n\n@numba.njit(cache=True)\ndef add_one(x):\n    return x + 1\n"
+_TOY = "import numba\n\n\n@numba.njit(cache=True)\ndef add_one(x):\n    return x + {}\n"
 
 
-def _toy_stats(src, env) -> str:
-    """Call the toy kernel in a fresh process: numba's compile stats of that call."""
-    code = "import toy_kernel as t; t.add_one(1); s = t.add_one.stats; "
-    code += "print(sum(s.cache_hits.values()), sum(s.cache_misses.values()))"
+def _toy_stats(src, env) -> list[str]:
+    """Call the toy kernel on 1 in a fresh process: its value and numba's cache hits and
+    misses (compiles) of that call."""
+    code = "import toy_kernel as t; v = t.add_one(1); s = t.add_one.stats; "
+    code += "print(v, sum(s.cache_hits.values()), sum(s.cache_misses.values()))"
     proc = subprocess.run(
         [sys.executable, "-c", code],
         cwd=src,
@@ -122,20 +124,27 @@ def _toy_stats(src, env) -> str:
 def test_adopted_kernels_load_where_they_would_compile(tmp_path, monkeypatch):
     # A kernel compiled under one NUMBA_CACHE_DIR (as measure_jit's processes do),
     # copied into the source's own __pycache__, is loaded from there: no second compile.
-    src, cache = tmp_path / "src", tmp_path / "cache"
+    src = tmp_path / "src"
     src.mkdir()
-    (src / "toy_kernel.py").write_text(_TOY, encoding="utf-8")
+    (src / "toy_kernel.py").write_text(_TOY.format(1), encoding="utf-8")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    assert _toy_stats(src, {**env, "NUMBA_CACHE_DIR": str(cache)}) == ["0", "1"]  # compiled
+    cache = tmp_path / "cache1"
+    assert _toy_stats(src, {**env, "NUMBA_CACHE_DIR": str(cache)}) == ["2", "0", "1"]  # compiled
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    copied = bench.adopt_compiled(cache, src)
-    assert copied == 2  # its index and its one compiled overload
-    assert _toy_stats(src, env) == ["1", "0"]  # loaded, not compiled
-    # An index already there is never replaced.
+    assert bench.adopt_compiled(cache, src) == 2  # its index and its one compiled overload
+    assert _toy_stats(src, env) == ["2", "1", "0"]  # loaded, not compiled
+    # An index as new as its source is never replaced.
     before = {p.name: p.stat().st_mtime_ns for p in (src / "__pycache__").glob("*.nb*")}
     assert bench.adopt_compiled(cache, src) == 0
     after = {p.name: p.stat().st_mtime_ns for p in (src / "__pycache__").glob("*.nb*")}
     assert after == before
+    # The source changes: the index there is out of date and the new compile replaces it.
+    time.sleep(0.05)  # past the file system's clock tick
+    (src / "toy_kernel.py").write_text(_TOY.format(2), encoding="utf-8")
+    cache = tmp_path / "cache2"
+    assert _toy_stats(src, {**env, "NUMBA_CACHE_DIR": str(cache)}) == ["3", "0", "1"]
+    assert bench.adopt_compiled(cache, src) == 2
+    assert _toy_stats(src, env) == ["3", "1", "0"]
 
 
 def test_adopt_compiled_finds_nothing_to_copy_for_another_folder(tmp_path):
