@@ -1086,6 +1086,8 @@ def warm_up(pixels: int | None = None) -> None:
         reproject_map(motion, plane, at.reshape(1, 1), plane, at.reshape(1, 1), 0.1)
     for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
         fetch(np.zeros(1, dtype), at, yes)
+    read_column(one32, at, 1.0, g3, 0)
+    write_column(g3, 0, at, 1.0, 1e38, one32.copy())
     # The separable passes (the separable method, the temporal proxy) and the temporal
     # reuse's neighbourhood and per-pixel steps, in the argument types
     # core.separable.apply and core.mc.temporal pass.
@@ -1754,6 +1756,48 @@ def fetch(values: np.ndarray, src: np.ndarray, keep: np.ndarray) -> np.ndarray:
 def _fetch_pass(values, src, keep, out):
     for i in numba.prange(out.shape[0]):
         out[i] = values[src[i]] if keep[i] else 0
+
+
+# -- the history's reads and writes (core.mc.history.History.read_columns) -------------
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def read_column(buf, index, scale, out, col):
+    """``out[:, col] = buf[index] / scale`` in float64 (History.read of a float32 buffer:
+    the same values).
+
+    Parameters
+    ----------
+    buf : (H·W,) float32, a history buffer (stored units); index : (P,) int64 flat pixels
+    scale : float, stored value = true value × scale; out : (P, k) float64, written
+    col : int, the column of ``out`` to write
+    """
+    for k in numba.prange(index.shape[0]):
+        v = np.float64(buf[index[k]])
+        if scale != 1.0:
+            v = v / scale
+        out[k, col] = v
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def write_column(values, col, index, scale, big, buf):
+    """``buf[index] = values[:, col]`` as History.write stores a float32 buffer: times
+    ``scale``, clipped to ±``big`` (±inf too), NaN stored as 0, rounded to float32.
+
+    Parameters
+    ----------
+    values : (P, k) float64, true units; col : int; index : (P,) int64 flat pixels
+    scale : float; big : float, the largest finite float32; buf : (H·W,) float32, written
+    """
+    for k in numba.prange(index.shape[0]):
+        v = values[k, col]
+        if scale != 1.0:
+            v = v * scale
+        if v != v:
+            v = 0.0
+        elif v > big:
+            v = big
+        elif v < -big:
+            v = -big
+        buf[index[k]] = np.float32(v)
 
 
 # -- the separable passes (core.separable.apply) ---------------------------------------

@@ -165,17 +165,26 @@ class History:
             return self.var_scale
         return 1.0
 
-    def read(self, name: str, index: np.ndarray) -> np.ndarray:
-        """Values of a buffer at flat pixel ``index`` as float64, true units."""
+    def read(self, name: str, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
+        """Values of a buffer at flat pixel ``index`` as float64, true units (compiled
+        where :meth:`read_columns` is)."""
+        if self._compiled_io(backend, index, (name,)):
+            return self.read_columns((name,), index, backend)[:, 0]
         v = self.buffers[name].reshape(-1)[index].astype(np.float64)
         scale = self.scale(name)
         if scale != 1.0:
             v /= scale
         return v
 
-    def write(self, name: str, index: np.ndarray, values: np.ndarray) -> None:
-        """Store float64 ``values`` (true units) at flat ``index``, rounding to storage."""
+    def write(
+        self, name: str, index: np.ndarray, values: np.ndarray, backend: str = "numpy"
+    ) -> None:
+        """Store float64 ``values`` (true units) at flat ``index``, rounding to storage
+        (compiled where :meth:`write_columns` is)."""
         v = np.asarray(values, dtype=np.float64)
+        if self._compiled_io(backend, index, (name,)):
+            self.write_columns((name,), index, v.reshape(-1, 1), backend)
+            return
         scale = self.scale(name)
         if scale != 1.0:
             with np.errstate(over="ignore"):
@@ -186,6 +195,60 @@ class History:
         if nan.any():
             v[nan] = 0.0  # ... and is stored as 0
         self.buffers[name].reshape(-1)[index] = v.astype(self.dtype)
+
+    def read_columns(self, names, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
+        """(P, k) float64: :meth:`read` of each of the k buffers ``names`` as a column.
+
+        Where ``backend`` resolves to numba and the buffers are float32, one compiled
+        pass per buffer (:func:`core.mc.estimator_numba.read_column`), the same values.
+        """
+        if self._compiled_io(backend, index, names):
+            from .estimator_numba import read_column
+
+            # Contiguous (no copy where already so): the kernels' warmed-up layout.
+            index = np.ascontiguousarray(index)
+            out = np.empty((index.shape[0], len(names)))
+            for c, name in enumerate(names):
+                read_column(self.buffers[name].reshape(-1), index, self.scale(name), out, c)
+            return out
+        return np.stack([self.read(n, index) for n in names], axis=-1)
+
+    def write_columns(
+        self, names, index: np.ndarray, values: np.ndarray, backend: str = "numpy"
+    ) -> None:
+        """:meth:`write` of each column of ``values`` ((P, k) float) to the buffer of the
+        same position in ``names``.
+
+        Where ``backend`` resolves to numba and the buffers are float32, one compiled
+        pass per buffer (:func:`core.mc.estimator_numba.write_column`), the same stores.
+        """
+        values = np.asarray(values, dtype=np.float64)
+        if self._compiled_io(backend, index, names):
+            from .estimator_numba import write_column
+
+            # Contiguous (no copy where already so): the kernels' warmed-up layout.
+            values, index = np.ascontiguousarray(values), np.ascontiguousarray(index)
+            big = _FINITE_MAX["float32"]
+            for c, name in enumerate(names):
+                write_column(
+                    values, c, index, self.scale(name), big, self.buffers[name].reshape(-1)
+                )
+            return
+        for c, name in enumerate(names):
+            self.write(name, index, values[:, c])
+
+    def _compiled_io(self, backend: str, index: np.ndarray, names) -> bool:
+        """The compiled reads and writes run: numba backend, int64 indices and
+        contiguous float32 buffers (numba stores no float16; a flat view of a
+        contiguous buffer is the buffer itself, so a write lands in it)."""
+        from .backend import compiled
+
+        if not compiled(backend) or getattr(index, "dtype", None) != np.int64:
+            return False
+        return all(
+            self.buffers[n].dtype == np.float32 and self.buffers[n].flags.c_contiguous
+            for n in names
+        )
 
     def mask_of(self, index: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(H, W) bool image: ``values`` at flat ``index``, False elsewhere."""

@@ -93,7 +93,11 @@ class MonteCarloProcessor:
             return np.where(gmax > 0, p.reference_spp, 0).astype(np.int32), valid
         valid = hist.valid.reshape(-1)[geom.index]
         counts = adaptive.sample_counts(
-            hist.read("var", geom.index), hist.read("mbar", geom.index), valid, gmax, p
+            hist.read("var", geom.index, p.backend),
+            hist.read("mbar", geom.index, p.backend),
+            valid,
+            gmax,
+            p,
         )
         return counts, valid
 
@@ -293,17 +297,17 @@ class MonteCarloProcessor:
         else:
             tracked = f_bar
         mu, var, mbar, new_valid = adaptive.update_history(
-            hist.read("mu", idx),
-            hist.read("var", idx),
-            hist.read("mbar", idx),
+            hist.read("mu", idx, p.backend),
+            hist.read("var", idx, p.backend),
+            hist.read("mbar", idx, p.backend),
             valid,
             tracked,
             m,
             p,
         )
-        hist.write("mu", idx, mu)
-        hist.write("var", idx, var)
-        hist.write("mbar", idx, mbar)
+        hist.write("mu", idx, mu, p.backend)
+        hist.write("var", idx, var, p.backend)
+        hist.write("mbar", idx, mbar, p.backend)
         hist.valid = hist.mask_of(idx, new_valid)
         alpha = np.where(m > 0, alpha, 0.0)
         return alpha, np.where(m > 0, var, 0.0)
@@ -324,17 +328,18 @@ class MonteCarloProcessor:
         """α from the covariance history of Z = [f̄, ḡ] (Alg. 2), then one EMCM step (Eq. 33)."""
         p = self.params
         jv = hist.cv_valid.reshape(-1)[idx] & valid
-        sxx, sxy, syy = (np.where(jv, hist.read(k, idx), 0.0) for k in ("sxx", "sxy", "syy"))
+        b = p.backend
+        sxx, sxy, syy = (np.where(jv, hist.read(k, idx, b), 0.0) for k in ("sxx", "sxy", "syy"))
         z = np.stack([f_bar, g_known], axis=-1)
         # ζ starts at the first observation (and again after a disocclusion), Σ at 0.
-        zeta = np.where(jv[:, None], np.stack([hist.read("zf", idx), hist.read("zg", idx)], -1), z)
+        zeta = np.where(jv[:, None], hist.read_columns(("zf", "zg"), idx, b), z)
         alpha = control_variates.cv_coefficient(sxy, syy, f_bar, g_known, p.eps_alpha)
         sigma = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
         sigma, zeta = control_variates.emcm_step(sigma, zeta, z, p.eta_cv)
-        hist.write("sxx", idx, np.where(jv, sigma[:, 0, 0], 0.0))
-        hist.write("sxy", idx, np.where(jv, sigma[:, 0, 1], 0.0))
-        hist.write("syy", idx, np.where(jv, sigma[:, 1, 1], 0.0))
-        hist.write("zf", idx, np.where(jv, zeta[:, 0], f_bar))
-        hist.write("zg", idx, np.where(jv, zeta[:, 1], g_known))
+        hist.write("sxx", idx, np.where(jv, sigma[:, 0, 0], 0.0), b)
+        hist.write("sxy", idx, np.where(jv, sigma[:, 0, 1], 0.0), b)
+        hist.write("syy", idx, np.where(jv, sigma[:, 1, 1], 0.0), b)
+        hist.write("zf", idx, np.where(jv, zeta[:, 0], f_bar), b)
+        hist.write("zg", idx, np.where(jv, zeta[:, 1], g_known), b)
         hist.cv_valid = hist.mask_of(idx, m > 0)
         return alpha

@@ -70,15 +70,6 @@ _PROX = ("prox_r", "prox_g", "prox_b")
 _CTL = ("ctl_r", "ctl_g", "ctl_b")
 
 
-def _read3(hist: History, names, idx: np.ndarray) -> np.ndarray:
-    return np.stack([hist.read(n, idx) for n in names], axis=-1)
-
-
-def _write3(hist: History, names, idx: np.ndarray, values: np.ndarray) -> None:
-    for c, name in enumerate(names):
-        hist.write(name, idx, values[:, c])
-
-
 def neighbourhood(
     geom: Geometry, values: np.ndarray, active: np.ndarray, backend: str = "numpy"
 ) -> tuple:
@@ -217,22 +208,22 @@ def reuse(
         scale = control.mean(axis=0) if control.size else np.zeros(3)
     scale = np.maximum(np.asarray(scale, dtype=np.float64), 1e-12)
     eps = 1e-3 * scale  # per channel, relative to the frame's lighting
-    n = hist.read("acc_n", idx)
-    prev = _read3(hist, _ACC, idx)
-    ctl_prev = _read3(hist, _CTL, idx) if mode != "plain" else None
-    prox_prev = _read3(hist, _PROX, idx) if mode == "multiplicative" else None
+    n = hist.read("acc_n", idx, backend)
+    prev = hist.read_columns(_ACC, idx, backend)
+    ctl_prev = hist.read_columns(_CTL, idx, backend) if mode != "plain" else None
+    prox_prev = hist.read_columns(_PROX, idx, backend) if mode == "multiplicative" else None
     step = _step_compiled if compiled(backend) else _step
     acc, out, n_new = step(
         geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps,
         mode=mode, min_weight=min_weight, clamp=clamp, tolerance=tolerance, noise=noise,
         floor=1e-12 * scale @ _Y, backend=backend,
     )  # fmt: skip
-    _write3(hist, _ACC, idx, acc)
-    hist.write("acc_n", idx, n_new)
+    hist.write_columns(_ACC, idx, acc, backend)
+    hist.write("acc_n", idx, n_new, backend)
     if mode != "plain":
-        _write3(hist, _CTL, idx, control)
+        hist.write_columns(_CTL, idx, control, backend)
     if mode == "multiplicative":
-        _write3(hist, _PROX, idx, np.maximum(proxy, 0.0))
+        hist.write_columns(_PROX, idx, np.maximum(proxy, 0.0), backend)
     return out, n_new
 
 

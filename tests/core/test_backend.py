@@ -368,6 +368,44 @@ def test_compiled_reprojection_equals_numpy(precision, moving):
     assert estimator_numba._reproject_pass.signatures  # the compiled pass ran
 
 
+@pytest.mark.parametrize("scaled", [False, True])
+def test_compiled_history_columns_equal_numpy(scaled):
+    """History.read_columns / write_columns on the compiled backend store and return
+    what History.read / write do, bit for bit: NaN (stored 0), ±inf and values past
+    float32 (stored ±max), values that round, negative zero; with a stored scale
+    (the float16 scales, forced here on float32 buffers) and without."""
+    from cvsss.core.mc import estimator_numba
+    from cvsss.core.mc.history import History
+
+    rng = np.random.default_rng(5)
+    shape = (19, 29)
+    names = ("acc_r", "var", "sxy")
+    hist = History.empty(shape, "float32", 1e-3, 1e-4, temporal=True)
+    if scaled:
+        hist.cov_scale, hist.var_scale = 1e3, 1e4
+    assert (hist.scale("var") != 1.0) == scaled
+    index = rng.choice(shape[0] * shape[1], 300, replace=False).astype(np.int64)
+    values = rng.normal(0, 1e3, (300, 3)) * rng.choice([1e-40, 1.0, 1e36], (300, 3))
+    values[:6, 0] = [np.nan, np.inf, -np.inf, 4e38, -4e38, -0.0]
+    values[6:9, 1] = [np.nan, 1e35, -1e35]  # past float32 once scaled
+    a, b = (dataclasses.replace(hist, buffers={k: v.copy() for k, v in hist.buffers.items()})
+            for _ in range(2))  # fmt: skip
+    for c, name in enumerate(names):
+        a.write(name, index, values[:, c])
+    b.write_columns(names, index, values, "numba")
+    for name in names:
+        assert np.array_equal(a.buffers[name].view(np.uint32), b.buffers[name].view(np.uint32))
+    assert not np.isfinite(values).all() and np.isfinite(b.buffers["acc_r"]).all()
+    back = np.stack([a.read(n, index) for n in names], axis=-1)
+    got = b.read_columns(names, index, "numba")
+    assert got.dtype == np.float64 and np.array_equal(back.view(np.uint64), got.view(np.uint64))
+    # The compiled passes ran (not the NumPy fall-back), and float16 buffers fall back.
+    assert estimator_numba.read_column.signatures and estimator_numba.write_column.signatures
+    half = History.empty(shape, "float16", 1e-3, 1e-4, temporal=True)
+    assert not half._compiled_io("numba", index, names)
+    assert hist._compiled_io("numba", index, names)
+
+
 @pytest.mark.parametrize("method", ["as_ccv", "as"])
 @pytest.mark.parametrize("weighted", [True, False])
 def test_compiled_history_step_equals_numpy(method, weighted, monkeypatch):
