@@ -183,7 +183,7 @@ class History:
         (compiled where :meth:`write_columns` is)."""
         v = np.asarray(values, dtype=np.float64)
         if self._compiled_io(backend, index, (name,)):
-            self.write_columns((name,), index, v.reshape(-1, 1), backend)
+            self.write_columns((name,), index, v.reshape(-1, 1) if v.ndim else v, backend)
             return
         scale = self.scale(name)
         if scale != 1.0:
@@ -226,8 +226,10 @@ class History:
         if self._compiled_io(backend, index, names):
             from .estimator_numba import write_column
 
-            # Contiguous (no copy where already so): the kernels' warmed-up layout.
-            values, index = np.ascontiguousarray(values), np.ascontiguousarray(index)
+            # One row per pixel, as NumPy's assignment broadcasts a scalar or a row;
+            # contiguous (no copy where already so): the kernels' warmed-up layout.
+            index = np.ascontiguousarray(index)
+            values = np.ascontiguousarray(np.broadcast_to(values, (index.shape[0], len(names))))
             big = _FINITE_MAX["float32"]
             for c, name in enumerate(names):
                 write_column(

@@ -19,6 +19,7 @@ means is documented there). This front-end adds what core does not do:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import glob
 import hashlib
@@ -340,6 +341,7 @@ def adopt_compiled(cache_dir: Path, source: Path, target: Path | None = None) ->
     if not found.is_dir():
         return 0
     copied = 0
+    part = None
     try:
         target.mkdir(parents=True, exist_ok=True)
         for index in sorted(found.glob("*.nbi")):
@@ -350,9 +352,12 @@ def adopt_compiled(cache_dir: Path, source: Path, target: Path | None = None) ->
                 part = target / f".{path.name}.{os.getpid()}.tmp"
                 shutil.copyfile(path, part)
                 os.replace(part, target / path.name)
+                part = None
                 copied += 1
     except OSError:
-        pass
+        if part is not None:  # a copy that failed half-way leaves no temporary file
+            with contextlib.suppress(OSError):
+                part.unlink()
     return copied
 
 

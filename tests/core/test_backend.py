@@ -396,6 +396,10 @@ def test_compiled_history_columns_equal_numpy(scaled):
     for name in names:
         assert np.array_equal(a.buffers[name].view(np.uint32), b.buffers[name].view(np.uint32))
     assert not np.isfinite(values).all() and np.isfinite(b.buffers["acc_r"]).all()
+    # A scalar broadcasts to every pixel, as in NumPy's assignment.
+    a.write("sxx", index[:7], 2.5)
+    b.write("sxx", index[:7], 2.5, "numba")
+    assert np.array_equal(a.buffers["sxx"], b.buffers["sxx"])
     back = np.stack([a.read(n, index) for n in names], axis=-1)
     got = b.read_columns(names, index, "numba")
     assert got.dtype == np.float64 and np.array_equal(back.view(np.uint64), got.view(np.uint64))

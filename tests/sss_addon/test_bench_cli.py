@@ -147,6 +147,21 @@ def test_adopted_kernels_load_where_they_would_compile(tmp_path, monkeypatch):
     assert _toy_stats(src, env) == ["3", "1", "0"]
 
 
+def test_adopt_compiled_leaves_no_partial_file_when_a_copy_fails(tmp_path, monkeypatch):
+    src, cache, target = tmp_path / "src", tmp_path / "cache", tmp_path / "target"
+    src.mkdir()
+    (src / "toy_kernel.py").write_text(_TOY.format(1), encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    assert _toy_stats(src, {**env, "NUMBA_CACHE_DIR": str(cache)}) == ["2", "0", "1"]
+
+    def full(a, b):  # the disk fills up as the first file is moved into place
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(bench.os, "replace", full)
+    assert bench.adopt_compiled(cache, src, target) == 0
+    assert target.is_dir() and list(target.iterdir()) == []
+
+
 def test_adopt_compiled_finds_nothing_to_copy_for_another_folder(tmp_path):
     (tmp_path / "cache").mkdir()
     assert bench.adopt_compiled(tmp_path / "cache", tmp_path / "elsewhere") == 0
