@@ -226,10 +226,15 @@ class History:
         if self._compiled_io(backend, index, names):
             from .estimator_numba import write_column
 
-            # One row per pixel, as NumPy's assignment broadcasts a scalar or a row;
-            # contiguous (no copy where already so): the kernels' warmed-up layout.
+            # One row per pixel, as NumPy's assignment broadcasts a scalar or a row, in
+            # the kernel's warmed-up type: contiguous and writable (numba types a
+            # read-only array apart, and would compile again); no copy where it is.
             index = np.ascontiguousarray(index)
-            values = np.ascontiguousarray(np.broadcast_to(values, (index.shape[0], len(names))))
+            shape = (index.shape[0], len(names))
+            if values.shape != shape:
+                values = np.broadcast_to(values, shape)
+            if not (values.flags.c_contiguous and values.flags.writeable):
+                values = np.array(values, order="C")
             big = _FINITE_MAX["float32"]
             for c, name in enumerate(names):
                 write_column(

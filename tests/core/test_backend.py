@@ -405,6 +405,11 @@ def test_compiled_history_columns_equal_numpy(scaled):
     assert got.dtype == np.float64 and np.array_equal(back.view(np.uint64), got.view(np.uint64))
     # The compiled passes ran (not the NumPy fall-back), and float16 buffers fall back.
     assert estimator_numba.read_column.signatures and estimator_numba.write_column.signatures
+    # ... in the types warm_up compiles: writable arrays (a read-only one is another type,
+    # compiled again at its first use, inside a frame).
+    for kernel in (estimator_numba.read_column, estimator_numba.write_column):
+        arrays = [t for sig in kernel.signatures for t in sig if isinstance(t, numba.types.Array)]
+        assert arrays and all(t.mutable for t in arrays)
     half = History.empty(shape, "float16", 1e-3, 1e-4, temporal=True)
     assert not half._compiled_io("numba", index, names)
     assert hist._compiled_io("numba", index, names)
