@@ -169,7 +169,7 @@ class History:
         """Values of a buffer at flat pixel ``index`` as float64, true units (compiled
         where :meth:`read_columns` is)."""
         if self._compiled_io(backend, index, (name,)):
-            return self.read_columns((name,), index, backend)[:, 0]
+            return self._read_compiled((name,), index)[:, 0]
         v = self.buffers[name].reshape(-1)[index].astype(np.float64)
         scale = self.scale(name)
         if scale != 1.0:
@@ -183,7 +183,7 @@ class History:
         (compiled where :meth:`write_columns` is)."""
         v = np.asarray(values, dtype=np.float64)
         if self._compiled_io(backend, index, (name,)):
-            self.write_columns((name,), index, v.reshape(-1, 1) if v.ndim else v, backend)
+            self._write_compiled((name,), index, v.reshape(-1, 1))
             return
         scale = self.scale(name)
         if scale != 1.0:
@@ -203,14 +203,7 @@ class History:
         pass per buffer (:func:`core.mc.estimator_numba.read_column`), the same values.
         """
         if self._compiled_io(backend, index, names):
-            from .estimator_numba import read_column
-
-            # Contiguous (no copy where already so): the kernels' warmed-up layout.
-            index = np.ascontiguousarray(index)
-            out = np.empty((index.shape[0], len(names)))
-            for c, name in enumerate(names):
-                read_column(self.buffers[name].reshape(-1), index, self.scale(name), out, c)
-            return out
+            return self._read_compiled(names, index)
         return np.stack([self.read(n, index) for n in names], axis=-1)
 
     def write_columns(
@@ -224,22 +217,7 @@ class History:
         """
         values = np.asarray(values, dtype=np.float64)
         if self._compiled_io(backend, index, names):
-            from .estimator_numba import write_column
-
-            # One row per pixel, as NumPy's assignment broadcasts a scalar or a row, in
-            # the kernel's warmed-up type: contiguous and writable (numba types a
-            # read-only array apart, and would compile again); no copy where it is.
-            index = np.ascontiguousarray(index)
-            shape = (index.shape[0], len(names))
-            if values.shape != shape:
-                values = np.broadcast_to(values, shape)
-            if not (values.flags.c_contiguous and values.flags.writeable):
-                values = np.array(values, order="C")
-            big = _FINITE_MAX["float32"]
-            for c, name in enumerate(names):
-                write_column(
-                    values, c, index, self.scale(name), big, self.buffers[name].reshape(-1)
-                )
+            self._write_compiled(names, index, values)
             return
         for c, name in enumerate(names):
             self.write(name, index, values[:, c])
@@ -256,6 +234,34 @@ class History:
             self.buffers[n].dtype == np.float32 and self.buffers[n].flags.c_contiguous
             for n in names
         )
+
+    def _read_compiled(self, names, index: np.ndarray) -> np.ndarray:
+        """:meth:`read_columns` where :meth:`_compiled_io` holds."""
+        from .estimator_numba import read_column
+
+        # Contiguous (no copy where already so): the kernels' warmed-up layout.
+        index = np.ascontiguousarray(index)
+        out = np.empty((index.shape[0], len(names)))
+        for c, name in enumerate(names):
+            read_column(self.buffers[name].reshape(-1), index, self.scale(name), out, c)
+        return out
+
+    def _write_compiled(self, names, index: np.ndarray, values: np.ndarray) -> None:
+        """:meth:`write_columns` of float64 ``values`` where :meth:`_compiled_io` holds."""
+        from .estimator_numba import write_column
+
+        # One row per pixel, as NumPy's assignment broadcasts a scalar or a row, in
+        # the kernel's warmed-up type: contiguous and writable (numba types a
+        # read-only array apart, and would compile again); no copy where it is.
+        index = np.ascontiguousarray(index)
+        shape = (index.shape[0], len(names))
+        if values.shape != shape:
+            values = np.broadcast_to(values, shape)
+        if not (values.flags.c_contiguous and values.flags.writeable):
+            values = np.array(values, order="C")
+        big = _FINITE_MAX["float32"]
+        for c, name in enumerate(names):
+            write_column(values, c, index, self.scale(name), big, self.buffers[name].reshape(-1))
 
     def mask_of(self, index: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(H, W) bool image: ``values`` at flat ``index``, False elsewhere."""
