@@ -130,11 +130,24 @@ def open_cluster(
         cluster.close()
 
 
-#: Dask settings of the local cluster (farm/dask/cvsss.yaml says the same for farm hosts):
-#: Dask's default MALLOC_TRIM_THRESHOLD_=65536 in the workers fixes glibc's mmap
-#: threshold at 128 KiB, so each large NumPy temporary is a fresh mmap with page faults
-#: (measured 2-3x slower per tile); None leaves glibc's adaptive default.
-LOCAL_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: Dask settings of the local cluster (farm/dask/cvsss.yaml says the same for farm hosts),
+#: the environment each worker process starts with (a variable already set in the
+#: environment wins: Dask's rule):
+#:
+#: - ``MALLOC_TRIM_THRESHOLD_``: Dask's default 65536 fixes glibc's mmap threshold at
+#:   128 KiB, so each large NumPy temporary is a fresh mmap with page faults (measured
+#:   2-3x slower per tile); None leaves glibc's adaptive default.
+#: - ``OMP_WAIT_POLICY=PASSIVE``: numba's parallel kernels run on OpenMP threads, which
+#:   by default spin for a while after each parallel loop; with two worker processes
+#:   on two cores each one's spinning threads took the other's cores. Measured on the
+#:   bench's ``workers`` section (2 cores): CPU per tile 101-109 → 48-50 ms with two
+#:   workers and 55-58 → 39 ms with one, the two workers' wall time 9.7 → 6.6-7.0 s.
+#:   A single process (``cvsss post`` without workers) keeps OpenMP's default: it has
+#:   nothing to take cores from, and its frames were no faster asleep.
+LOCAL_CONFIG = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.nanny.pre-spawn-environ.OMP_WAIT_POLICY": "PASSIVE",
+}
 
 
 def _local_cluster(distributed, workers: int):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+from pathlib import Path
 
 import pytest
 
@@ -15,7 +16,7 @@ from cvsss.core.eval.compare import output_differences
 from cvsss.core.params import SSSParams
 from cvsss.core.run import RunSpec, run_folder
 from cvsss.sss_addon.cli import main as cli
-from cvsss.sss_addon.farm.cluster import DaskExecutor, FarmError, open_cluster
+from cvsss.sss_addon.farm.cluster import LOCAL_CONFIG, DaskExecutor, FarmError, open_cluster
 from cvsss.sss_addon.farm.post import tiled_processors
 
 ARGS = (
@@ -111,3 +112,28 @@ def test_workers_and_scheduler_are_checked(moving_passes, tmp_path, capsys):
         open_cluster(scheduler="tcp://127.0.0.1:9", timeout=1),
     ):
         pass
+
+
+def _worker_environ(name: str) -> set:
+    with open_cluster(1) as executor:
+        return set(executor.client.run(os.environ.get, name).values())
+
+
+@pytest.mark.timeout(120)
+def test_local_workers_start_with_the_farm_environment(monkeypatch):
+    # OpenMP's spinning threads took the other workers' cores (cluster.LOCAL_CONFIG):
+    # each local worker starts asleep-waiting, unless the user set the policy.
+    monkeypatch.setenv("OMP_WAIT_POLICY", "unset")  # restored, even though Dask's nanny
+    monkeypatch.delenv("OMP_WAIT_POLICY")  # sets it in this process as well
+    assert _worker_environ("OMP_WAIT_POLICY") == {"PASSIVE"}
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    assert _worker_environ("OMP_WAIT_POLICY") == {"ACTIVE"}
+
+
+def test_farm_hosts_config_says_what_local_workers_get():
+    import yaml  # Dask's own dependency
+
+    path = Path(__file__).parents[2] / "farm" / "dask" / "cvsss.yaml"
+    environ = yaml.safe_load(path.read_text())["distributed"]["nanny"]["pre-spawn-environ"]
+    prefix = "distributed.nanny.pre-spawn-environ."
+    assert environ == {k.removeprefix(prefix): v for k, v in LOCAL_CONFIG.items()}
