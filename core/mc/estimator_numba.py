@@ -1074,9 +1074,9 @@ def warm_up(pixels: int | None = None) -> None:
     _update_pass(one, one, one, yes, one, one, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty((3, 1)))
     one32, at0, g3 = np.ones(1, np.float32), np.zeros(1, np.int64), np.ones((1, 3))
     _history_pass(
-        one32, one32.copy(), one32.copy(), at0, yes, g3, g3, g3, one,
-        np.ones(1, np.int32), True, 1.0, 0.75, 0.1875, 0.25, 1e-4, 64.0, 1e150, np.empty(1),
-        yes.copy(),
+        one32, one32.copy(), one32.copy(), *(one32.copy() for _ in range(5)), yes.copy(),
+        at0, yes, g3, g3, g3, one, np.ones(1, np.int32), 2, 1.0, 0.75, 0.1875, 0.25, 1e-4,
+        64.0, 1e150, 1e-4, 1e-6, np.empty(1), np.empty(1), yes.copy(),
     )  # fmt: skip
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
@@ -1451,12 +1451,20 @@ def _update_pass(mu, var, mbar, valid, tracked, counts, keep, spread, eta, s0, n
         )
 
 
-def history_step(buffers, index, valid, distant, gamma, b, weight, counts, residual, params):
-    """The history step of ``MonteCarloProcessor._update`` without an online control
-    variate, in one parallel pass over the SSS pixels, on a float32 history (stored
-    unscaled): the tracked luminance, Eq. 5–7 and the stores into the history's
-    buffers at ``index``, in place. The same float64 operations in the same order as
-    the NumPy step, and the same float32 stores (tests/core/test_backend.py).
+#: Control variates of the compiled history step (:func:`history_step`): none (track
+#: f̄), constant (Res = f̄ − G) and online (Res = f̄ − α·G, α from the covariance history).
+CV_MODES = {"none": 0, "constant": 1, "online": 2}
+
+
+def history_step(
+    buffers, index, valid, distant, gamma, b, weight, counts, cv, params, cv_history=None
+):
+    """The history step of ``MonteCarloProcessor._update`` in one parallel pass over
+    the SSS pixels, on a float32 history (stored unscaled): the tracked luminance, the
+    online control variate's α and EMCM step (Alg. 2, Eq. 33), Eq. 5–7 and the stores
+    into the history's buffers at ``index``, in place. The same float64 operations in
+    the same order as the NumPy step, and the same float32 stores
+    (tests/core/test_backend.py).
 
     Parameters
     ----------
@@ -1464,24 +1472,40 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
     index : (P,) int64, flat pixel index; valid : (P,) bool, the history was valid
     distant, gamma, b : (P, 3) float64, the distant estimate, γ and B
     weight : (P,) float64, Subsurface Weight; counts : (P,) int, m_t
-    residual : bool, track Res = f̄ − G (constant control variate) instead of f̄
-    params : SSSParams (exposure, η, σ0², initial count)
+    cv : {"none", "constant", "online"}, the method's control variate
+    params : SSSParams (exposure, η, σ0², initial count; ε_α, η_cv)
+    cv_history : with ``cv="online"``: ((sxx, sxy, syy, zf, zg), cv_valid), the
+        History's (H, W) float32 J buffers (written in place) and its (H, W) bool
+        mask of valid J (read)
 
     Returns
     -------
     var : (P,) float64, σ² at t where m_t > 0, else 0
     new_valid : (H, W) bool, the pixels with m_t > 0
+    alpha : (P,) float64, α where m_t > 0 (0 without a control variate, 1 constant),
+        else 0
     """
     from .processor import TRACK_LIMIT
 
     mu, var, mbar = buffers
     h, w = mu.shape
-    out = np.empty(index.shape[0])
+    n = index.shape[0]
+    out = np.empty(n)
+    alpha = np.empty(n)
     new_valid = np.zeros(h * w, np.bool_)
+    if cv == "online":
+        j_buffers, cv_valid = cv_history
+        j_flat = tuple(x.reshape(-1) for x in j_buffers)
+        cv_valid = np.ascontiguousarray(cv_valid).reshape(-1)
+    else:  # not read
+        j_flat = (np.empty(0, np.float32),) * 5
+        cv_valid = np.empty(0, np.bool_)
     _history_pass(
         mu.reshape(-1),
         var.reshape(-1),
         mbar.reshape(-1),
+        *j_flat,
+        cv_valid,
         index,
         valid,
         np.ascontiguousarray(distant, dtype=np.float64),
@@ -1489,14 +1513,17 @@ def history_step(buffers, index, valid, distant, gamma, b, weight, counts, resid
         np.ascontiguousarray(b, dtype=np.float64),
         np.ascontiguousarray(weight, dtype=np.float64),
         np.ascontiguousarray(counts),
-        bool(residual),
+        CV_MODES[cv],
         float(params.exposure),
         *_spvg_constants(params),
         float(TRACK_LIMIT),
+        float(params.eps_alpha),
+        float(params.eta_cv),
         out,
+        alpha,
         new_valid,
     )
-    return out, new_valid.reshape(h, w)
+    return out, new_valid.reshape(h, w), alpha
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
@@ -1519,11 +1546,34 @@ def _stored(x):
     return np.float32(min(max(x, -_F32_MAX), _F32_MAX))
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _cv_alpha(s_xy, s_yy, f, g, eps_alpha):
+    """core.mc.control_variates.cv_coefficient of one pixel (float64)."""
+    big = _F64_MAX
+    num = s_xy + eps_alpha
+    den = s_yy + eps_alpha
+    alpha = num / den if den > 0 else 1.0
+    upper = 1.0
+    if g > 0:
+        q = (f + g) / g
+        upper = q if (q >= 0.0 or np.isnan(q)) else 0.0  # np.maximum(q, 0.0)
+    upper = _finite(upper, 1.0, big, -big)
+    alpha = _finite(alpha, 1.0, big, 0.0)
+    alpha = alpha if alpha > 0.0 else 0.0  # np.clip(alpha, 0.0, upper)
+    return alpha if alpha < upper else upper
+
+
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _history_pass(
     mu,
     var,
     mbar,
+    sxx,
+    sxy,
+    syy,
+    zf,
+    zg,
+    cv_valid,
     index,
     valid,
     distant,
@@ -1531,7 +1581,7 @@ def _history_pass(
     b,
     weight,
     counts,
-    residual,
+    cv_mode,
     exposure,
     keep,
     spread,
@@ -1539,9 +1589,14 @@ def _history_pass(
     s0,
     n_init,
     limit,
+    eps_alpha,
+    eta_cv,
     out,
+    alpha_out,
     new_valid,
 ):
+    keep_cv = 1.0 - eta_cv
+    spread_cv = eta_cv * (1.0 - eta_cv)
     for i in numba.prange(index.shape[0]):
         # f̄ = (Î·exposure)·Rec.709 and G = ((γ·B)·exposure)·Rec.709, times the weight.
         f = (
@@ -1556,9 +1611,32 @@ def _history_pass(
         )
         f = _bounded(f * weight[i], limit)
         g = _bounded(g * weight[i], limit)
-        s = f - 1.0 * g if residual else f
         j = index[i]
         m = counts[i]
+        if cv_mode == 2:
+            # α from Σ at t − 1 (Alg. 2), then one EMCM step (Eq. 33) of Z = (f̄, G);
+            # Σ starts at 0 and ζ at Z where J is not valid (core.mc.processor._online_cv).
+            jv = cv_valid[j] and valid[i]
+            c_xx = np.float64(sxx[j]) if jv else 0.0
+            c_xy = np.float64(sxy[j]) if jv else 0.0
+            c_yy = np.float64(syy[j]) if jv else 0.0
+            z_f = np.float64(zf[j]) if jv else f
+            z_g = np.float64(zg[j]) if jv else g
+            a = _cv_alpha(c_xy, c_yy, f, g, eps_alpha)
+            d_f = f - z_f
+            d_g = g - z_g
+            sxx[j] = _stored(keep_cv * c_xx + spread_cv * d_f * d_f if jv else 0.0)
+            sxy[j] = _stored(keep_cv * c_xy + spread_cv * d_f * d_g if jv else 0.0)
+            syy[j] = _stored(keep_cv * c_yy + spread_cv * d_g * d_g if jv else 0.0)
+            zf[j] = _stored(keep_cv * z_f + eta_cv * f if jv else f)
+            zg[j] = _stored(keep_cv * z_g + eta_cv * g if jv else g)
+            s = f - a * g
+        elif cv_mode == 1:
+            a = 1.0
+            s = f - 1.0 * g
+        else:
+            a = 0.0
+            s = f
         mu_t, var_t, mbar_t = _spvg_step(
             s,
             valid[i],
@@ -1576,6 +1654,7 @@ def _history_pass(
         var[j] = _stored(var_t)
         mbar[j] = _stored(mbar_t)
         out[i] = var_t if m > 0 else 0.0
+        alpha_out[i] = a if m > 0 else 0.0
         new_valid[j] = m > 0
 
 

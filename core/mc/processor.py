@@ -24,7 +24,7 @@ from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
 from . import adaptive, backend, control_variates, temporal
 from .estimator import estimate_distant
-from .history import H_FIELDS, History
+from .history import H_FIELDS, J_FIELDS, History
 
 #: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
 #: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
@@ -261,7 +261,8 @@ class MonteCarloProcessor:
             # One compiled pass: the same operations and stores (see history_step).
             from .estimator_numba import history_step
 
-            var, hist.valid = history_step(
+            online = cv == "online"
+            var, hist.valid, alpha = history_step(
                 tuple(hist.buffers[k] for k in H_FIELDS),
                 idx,
                 valid,
@@ -270,10 +271,12 @@ class MonteCarloProcessor:
                 b,
                 geom.weight,
                 m,
-                cv == "constant",
+                cv,
                 p,
+                (tuple(hist.buffers[k] for k in J_FIELDS), hist.cv_valid) if online else None,
             )
-            alpha = np.where(m > 0, 1.0 if cv == "constant" else 0.0, 0.0)
+            if online:  # J is valid where samples were taken, as the history
+                hist.cv_valid = hist.valid.copy()
             return alpha, var
         # Tracked luminances are bounded so that their squares (σ², Σ) stay
         # finite in float64 whatever the exposure and HDR input.
@@ -313,15 +316,13 @@ class MonteCarloProcessor:
         return alpha, np.where(m > 0, var, 0.0)
 
     def _compiled_step(self, hist: History) -> bool:
-        """The history step runs as one compiled pass: the numba backend, no online
-        control variate, and float32 buffers (stored unscaled) it can write in place."""
-        return (
-            self.method.cv != "online"
-            and backend.compiled(self.params.backend)
-            and all(
-                hist.buffers[k].dtype == np.float32 and hist.buffers[k].flags.c_contiguous
-                for k in H_FIELDS
-            )
+        """The history step runs as one compiled pass: the numba backend and float32
+        buffers (stored unscaled) it can write in place, the online control variate's
+        J included."""
+        fields = (*H_FIELDS, *(J_FIELDS if self.method.cv == "online" else ()))
+        return backend.compiled(self.params.backend) and all(
+            hist.buffers[k].dtype == np.float32 and hist.buffers[k].flags.c_contiguous
+            for k in fields
         )
 
     def _online_cv(self, hist, idx, valid, m, f_bar, g_known) -> np.ndarray:

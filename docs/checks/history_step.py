@@ -1,10 +1,11 @@
 """The history step of a steady ``as_ccv`` frame: one compiled pass against NumPy's, and J.
 
-The methods without an online control variate (``as``, ``as_ccv`` and their
-temporal variants) update their float32 history in one compiled pass
-(:func:`core.mc.estimator_numba.history_step`: the tracked luminance, Eq. 5–7
-and the stores in place) and hold no J (the online control variate's five
-buffers), which the history then neither reprojects nor stores. On the
+The adaptive methods (``as``, ``as_ccv``, ``as_ocv`` and their temporal
+variants) update their float32 history in one compiled pass
+(:func:`core.mc.estimator_numba.history_step`: the tracked luminance, the
+online control variate's step, Eq. 5–7 and the stores in place); those without
+an online control variate hold no J (its five buffers), which the history then
+neither reprojects nor stores. On the
 bench's flash frame (``core.synthetic``; frame 7, history from frames 1–6,
 the compiled backend), for each size, this prints the whole ``process()``
 call, minimum and median of ``--calls`` interleaved calls from the same

@@ -415,18 +415,20 @@ def test_compiled_history_columns_equal_numpy(scaled):
     assert hist._compiled_io("numba", index, names)
 
 
-@pytest.mark.parametrize("method", ["as_ccv", "as"])
+@pytest.mark.parametrize("method", ["as_ccv", "as", "as_ocv"])
 @pytest.mark.parametrize("weighted", [True, False])
 def test_compiled_history_step_equals_numpy(method, weighted, monkeypatch):
-    """The compiled history step (tracked luminance, Eq. 5–7, float32 stores in place)
-    leaves NumPy's history bit for bit: μ, σ², m̄, the valid mask, and the α and σ²
-    maps. Estimates with NaN, ±inf and values beyond float32 (stored as ±max), huge
-    B (the tracked value's bound), weights 0…1 or all 1 (NumPy then skips the
-    product), invalid history and pixels without samples."""
+    """The compiled history step (tracked luminance, the online control variate's α
+    and EMCM step, Eq. 5–7, float32 stores in place) leaves NumPy's history bit for
+    bit: μ, σ², m̄, J and the valid masks, and the α and σ² maps. Estimates with NaN,
+    ±inf and values beyond float32 (stored as ±max), huge B (the tracked value's
+    bound), weights 0…1 or all 1 (NumPy then skips the product), invalid history and
+    J, pixels without samples, and covariances that put α on either bound of D or
+    leave its ratio undefined (Σ_yy + ε_α <= 0: α = 1)."""
     import types
 
     from cvsss.core.mc import estimator_numba
-    from cvsss.core.mc.history import H_FIELDS, History
+    from cvsss.core.mc.history import H_FIELDS, J_FIELDS, History
 
     rng = np.random.default_rng(5)
     shape, n = (19, 31), 400
@@ -446,12 +448,19 @@ def test_compiled_history_step_equals_numpy(method, weighted, monkeypatch):
     for k in H_FIELDS:
         hist.buffers[k][...] = rng.uniform(0, 3, shape)
     hist.buffers["var"].reshape(-1)[index[:4]] = [3e38, 0.0, 1e-30, 7.0]
+    for k in J_FIELDS:
+        hist.buffers[k][...] = rng.normal(0, 2, shape)
+    hist.buffers["syy"][...] = np.abs(hist.buffers["syy"])
+    # Σ_yy + ε_α tiny, 0 or negative (α = 1), Σ_xy huge or negative (α past D).
+    for k, v in (("syy", [1e-30, 0.0, 3e38, -1e-3]), ("sxy", [3e38, -3e38, 1e-3, -1e-4])):
+        hist.buffers[k].reshape(-1)[index[10:14]] = v
+    hist.cv_valid = rng.random(shape) < 0.8
     calls = []
     step = estimator_numba.history_step
     monkeypatch.setattr(estimator_numba, "history_step", lambda *a: calls.append(1) or step(*a))
     out = {}
     for name in ("numpy", "numba"):
-        params = SSSParams(backend=name, exposure=2.5)
+        params = SSSParams(backend=name, exposure=2.5, eps_alpha=0.0)
         proc = make_processor(method, params)
         h = History.from_arrays(hist.to_arrays())
         with np.errstate(all="ignore"):
@@ -459,10 +468,15 @@ def test_compiled_history_step_equals_numpy(method, weighted, monkeypatch):
         out[name] = (h, alpha, var)
     assert calls == [1]  # the numba run took the compiled step, the NumPy one did not
     (a, alpha_a, var_a), (c, alpha_c, var_c) = out["numpy"], out["numba"]
-    for k in H_FIELDS:
+    for k in (*H_FIELDS, *J_FIELDS):
         assert c.buffers[k].dtype == np.float32
         assert np.array_equal(a.buffers[k].view(np.uint32), c.buffers[k].view(np.uint32)), k
     assert np.array_equal(a.valid, c.valid) and a.valid.any() and not a.valid.all()
+    assert np.array_equal(a.cv_valid, c.cv_valid)
+    if method == "as_ocv":  # J moved, and α took values inside D and on its bounds
+        assert not np.array_equal(a.buffers["sxx"], hist.buffers["sxx"])
+        taken = alpha_a[m > 0]
+        assert (taken == 0).any() and ((taken > 0) & (taken < 1)).any() and (taken > 1).any()
     assert np.array_equal(alpha_a.view(np.uint64), alpha_c.view(np.uint64))
     assert np.array_equal(var_a.view(np.uint64), var_c.view(np.uint64))
     assert np.isfinite(a.buffers["mu"]).all() and (a.buffers["var"] >= 0).all()
