@@ -139,11 +139,11 @@ def open_cluster(
 #:   2-3x slower per tile); None leaves glibc's adaptive default.
 #: - ``OMP_WAIT_POLICY=PASSIVE``: numba's parallel kernels run on OpenMP threads, which
 #:   by default spin for a while after each parallel loop; with two worker processes
-#:   on two cores each one's spinning threads took the other's cores. Measured on the
-#:   bench's ``workers`` section (2 cores): CPU per tile 101-109 → 48-50 ms with two
-#:   workers and 55-58 → 39 ms with one, the two workers' wall time 9.7 → 6.6-7.0 s.
-#:   A single process (``cvsss post`` without workers) keeps OpenMP's default: it has
-#:   nothing to take cores from, and its frames were no faster asleep.
+#:   on two cores each one's spinning threads took the other's cores: CPU per tile
+#:   96 → 44-47 ms with two workers, 50 → 36-38 ms with one (the bench's ``workers``
+#:   section; README, *Render farms and clusters*). A single process (``cvsss post``
+#:   without workers) keeps OpenMP's default: it has nothing to take cores from, and
+#:   its frames were no faster asleep.
 LOCAL_CONFIG = {
     "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
     "distributed.nanny.pre-spawn-environ.OMP_WAIT_POLICY": "PASSIVE",
