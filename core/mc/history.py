@@ -168,7 +168,7 @@ class History:
     def read(self, name: str, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
         """Values of a buffer at flat pixel ``index`` as float64, true units (compiled
         where :meth:`read_columns` is)."""
-        if self._compiled_io(backend, index, (name,)):
+        if self.compiled_io(backend, index, (name,)):
             return self._read_compiled((name,), index)[:, 0]
         v = self.buffers[name].reshape(-1)[index].astype(np.float64)
         scale = self.scale(name)
@@ -182,7 +182,7 @@ class History:
         """Store float64 ``values`` (true units) at flat ``index``, rounding to storage
         (compiled where :meth:`write_columns` is)."""
         v = np.asarray(values, dtype=np.float64)
-        if self._compiled_io(backend, index, (name,)):
+        if self.compiled_io(backend, index, (name,)):
             self._write_compiled((name,), index, v.reshape(-1, 1))
             return
         scale = self.scale(name)
@@ -202,7 +202,7 @@ class History:
         Where ``backend`` resolves to numba and the buffers are float32, one compiled
         pass per buffer (:func:`core.mc.estimator_numba.read_column`), the same values.
         """
-        if self._compiled_io(backend, index, names):
+        if self.compiled_io(backend, index, names):
             return self._read_compiled(names, index)
         return np.stack([self.read(n, index) for n in names], axis=-1)
 
@@ -216,16 +216,18 @@ class History:
         pass per buffer (:func:`core.mc.estimator_numba.write_column`), the same stores.
         """
         values = np.asarray(values, dtype=np.float64)
-        if self._compiled_io(backend, index, names):
+        if self.compiled_io(backend, index, names):
             self._write_compiled(names, index, values)
             return
         for c, name in enumerate(names):
             self.write(name, index, values[:, c])
 
-    def _compiled_io(self, backend: str, index: np.ndarray, names) -> bool:
-        """The compiled reads and writes run: numba backend, int64 indices and
-        contiguous float32 buffers (numba stores no float16; a flat view of a
-        contiguous buffer is the buffer itself, so a write lands in it)."""
+    def compiled_io(self, backend: str, index: np.ndarray, names) -> bool:
+        """Compiled passes can read and write the buffers ``names`` at ``index`` in
+        place: numba backend, int64 indices and contiguous float32 buffers (numba
+        stores no float16; a flat view of a contiguous buffer is the buffer itself, so
+        a write lands in it). The compiled history step asks the same
+        (``MonteCarloProcessor._compiled_step``)."""
         from .backend import compiled
 
         if not compiled(backend) or getattr(index, "dtype", None) != np.int64:
@@ -236,7 +238,7 @@ class History:
         )
 
     def _read_compiled(self, names, index: np.ndarray) -> np.ndarray:
-        """:meth:`read_columns` where :meth:`_compiled_io` holds."""
+        """:meth:`read_columns` where :meth:`compiled_io` holds."""
         from .estimator_numba import read_column
 
         # Contiguous (no copy where already so): the kernels' warmed-up layout.
@@ -247,7 +249,7 @@ class History:
         return out
 
     def _write_compiled(self, names, index: np.ndarray, values: np.ndarray) -> None:
-        """:meth:`write_columns` of float64 ``values`` where :meth:`_compiled_io` holds."""
+        """:meth:`write_columns` of float64 ``values`` where :meth:`compiled_io` holds."""
         from .estimator_numba import write_column
 
         # One row per pixel, as NumPy's assignment broadcasts a scalar or a row, in

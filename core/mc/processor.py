@@ -22,7 +22,7 @@ from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
-from . import adaptive, backend, control_variates, temporal
+from . import adaptive, control_variates, temporal
 from .estimator import estimate_distant
 from .history import H_FIELDS, J_FIELDS, History
 
@@ -257,7 +257,7 @@ class MonteCarloProcessor:
         p = self.params
         idx = geom.index
         cv = self.method.cv
-        if self._compiled_step(hist):
+        if self._compiled_step(hist, idx):
             # One compiled pass: the same operations and stores (see history_step).
             from .estimator_numba import history_step
 
@@ -300,47 +300,43 @@ class MonteCarloProcessor:
         else:
             tracked = f_bar
         mu, var, mbar, new_valid = adaptive.update_history(
-            hist.read("mu", idx, p.backend),
-            hist.read("var", idx, p.backend),
-            hist.read("mbar", idx, p.backend),
+            hist.read("mu", idx),
+            hist.read("var", idx),
+            hist.read("mbar", idx),
             valid,
             tracked,
             m,
             p,
         )
-        hist.write("mu", idx, mu, p.backend)
-        hist.write("var", idx, var, p.backend)
-        hist.write("mbar", idx, mbar, p.backend)
+        hist.write("mu", idx, mu)
+        hist.write("var", idx, var)
+        hist.write("mbar", idx, mbar)
         hist.valid = hist.mask_of(idx, new_valid)
         alpha = np.where(m > 0, alpha, 0.0)
         return alpha, np.where(m > 0, var, 0.0)
 
-    def _compiled_step(self, hist: History) -> bool:
-        """The history step runs as one compiled pass: the numba backend and float32
-        buffers (stored unscaled) it can write in place, the online control variate's
-        J included."""
+    def _compiled_step(self, hist: History, index: np.ndarray) -> bool:
+        """The history step runs as one compiled pass where compiled passes can write
+        its buffers in place (:meth:`History.compiled_io`: the numba backend, float32,
+        stored unscaled), the online control variate's J included."""
         fields = (*H_FIELDS, *(J_FIELDS if self.method.cv == "online" else ()))
-        return backend.compiled(self.params.backend) and all(
-            hist.buffers[k].dtype == np.float32 and hist.buffers[k].flags.c_contiguous
-            for k in fields
-        )
+        return hist.compiled_io(self.params.backend, index, fields)
 
     def _online_cv(self, hist, idx, valid, m, f_bar, g_known) -> np.ndarray:
         """α from the covariance history of Z = [f̄, ḡ] (Alg. 2), then one EMCM step (Eq. 33)."""
         p = self.params
         jv = hist.cv_valid.reshape(-1)[idx] & valid
-        b = p.backend
-        sxx, sxy, syy = (np.where(jv, hist.read(k, idx, b), 0.0) for k in ("sxx", "sxy", "syy"))
+        sxx, sxy, syy = (np.where(jv, hist.read(k, idx), 0.0) for k in ("sxx", "sxy", "syy"))
         z = np.stack([f_bar, g_known], axis=-1)
         # ζ starts at the first observation (and again after a disocclusion), Σ at 0.
-        zeta = np.where(jv[:, None], hist.read_columns(("zf", "zg"), idx, b), z)
+        zeta = np.where(jv[:, None], hist.read_columns(("zf", "zg"), idx), z)
         alpha = control_variates.cv_coefficient(sxy, syy, f_bar, g_known, p.eps_alpha)
         sigma = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
         sigma, zeta = control_variates.emcm_step(sigma, zeta, z, p.eta_cv)
-        hist.write("sxx", idx, np.where(jv, sigma[:, 0, 0], 0.0), b)
-        hist.write("sxy", idx, np.where(jv, sigma[:, 0, 1], 0.0), b)
-        hist.write("syy", idx, np.where(jv, sigma[:, 1, 1], 0.0), b)
-        hist.write("zf", idx, np.where(jv, zeta[:, 0], f_bar), b)
-        hist.write("zg", idx, np.where(jv, zeta[:, 1], g_known), b)
+        hist.write("sxx", idx, np.where(jv, sigma[:, 0, 0], 0.0))
+        hist.write("sxy", idx, np.where(jv, sigma[:, 0, 1], 0.0))
+        hist.write("syy", idx, np.where(jv, sigma[:, 1, 1], 0.0))
+        hist.write("zf", idx, np.where(jv, zeta[:, 0], f_bar))
+        hist.write("zg", idx, np.where(jv, zeta[:, 1], g_known))
         hist.cv_valid = hist.mask_of(idx, m > 0)
         return alpha

@@ -36,7 +36,7 @@ from cvsss.core.synthetic import scene_frame
 def variant(name: str, frames):
     proc = make_processor("as_ccv", SSSParams(backend="numba"))
     if name != "this":
-        proc._compiled_step = lambda hist: False
+        proc._compiled_step = lambda hist, index: False
     if name == "numpy step + J":
         p = proc.params
         proc.history = History.empty(

@@ -411,8 +411,8 @@ def test_compiled_history_columns_equal_numpy(scaled):
         arrays = [t for sig in kernel.signatures for t in sig if isinstance(t, numba.types.Array)]
         assert arrays and all(t.mutable for t in arrays)
     half = History.empty(shape, "float16", 1e-3, 1e-4, temporal=True)
-    assert not half._compiled_io("numba", index, names)
-    assert hist._compiled_io("numba", index, names)
+    assert not half.compiled_io("numba", index, names)
+    assert hist.compiled_io("numba", index, names)
 
 
 @pytest.mark.parametrize("method", ["as_ccv", "as", "as_ocv"])
