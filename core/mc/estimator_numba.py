@@ -1087,7 +1087,7 @@ def warm_up(pixels: int | None = None) -> None:
     for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
         fetch(np.zeros(1, dtype), at, yes)
     read_column(one32, at, 1.0, g3, 0)
-    write_column(g3, 0, at, 1.0, 1e38, one32.copy())
+    write_column(g3, 0, at, 1.0, one32.copy())
     # The separable passes (the separable method, the temporal proxy) and the temporal
     # reuse's neighbourhood and per-pixel steps, in the argument types
     # core.separable.apply and core.mc.temporal pass.
@@ -1857,26 +1857,21 @@ def read_column(buf, index, scale, out, col):
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def write_column(values, col, index, scale, big, buf):
+def write_column(values, col, index, scale, buf):
     """``buf[index] = values[:, col]`` as History.write stores a float32 buffer: times
-    ``scale``, clipped to ±``big`` (±inf too), NaN stored as 0, rounded to float32.
+    ``scale``, then :func:`_stored` (clipped to ±float32 max, ±inf too, NaN stored as 0,
+    rounded to float32).
 
     Parameters
     ----------
     values : (P, k) float64, true units; col : int; index : (P,) int64 flat pixels
-    scale : float; big : float, the largest finite float32; buf : (H·W,) float32, written
+    scale : float; buf : (H·W,) float32, written
     """
     for k in numba.prange(index.shape[0]):
         v = values[k, col]
         if scale != 1.0:
             v = v * scale
-        if v != v:
-            v = 0.0
-        elif v > big:
-            v = big
-        elif v < -big:
-            v = -big
-        buf[index[k]] = np.float32(v)
+        buf[index[k]] = _stored(v)
 
 
 # -- the separable passes (core.separable.apply) ---------------------------------------

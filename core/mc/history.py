@@ -261,9 +261,8 @@ class History:
             values = np.broadcast_to(values, shape)
         if not (values.flags.c_contiguous and values.flags.writeable):
             values = np.array(values, order="C")
-        big = _FINITE_MAX["float32"]
         for c, name in enumerate(names):
-            write_column(values, c, index, self.scale(name), big, self.buffers[name].reshape(-1))
+            write_column(values, c, index, self.scale(name), self.buffers[name].reshape(-1))
 
     def mask_of(self, index: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(H, W) bool image: ``values`` at flat ``index``, False elsewhere."""
