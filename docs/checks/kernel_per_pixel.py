@@ -9,7 +9,7 @@ besides its samples: the per-task pre-pass (hash, channel maps, disk axes,
 tangent plane), the loads of its values and the start of each stage loop for
 its samples. It is work, not waiting on reads: batches that take their samples
 from consecutive pixels (a pixel's lone sample beside 31 others) cost as much
-per pixel (see the README's Performance section). ``b`` is printed next to the
+per pixel (see docs/performance.md, *Backends*). ``b`` is printed next to the
 bench's gather roofline (``core.eval.bench.gather_ns_per_sample``, timed in
 the same run with the 32-spp counts). Run from the repo root:
 
