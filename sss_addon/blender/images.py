@@ -1,7 +1,10 @@
 """Per-frame maps of a FrameResult as Blender image datablocks.
 
 Each map has one datablock, updated in place frame after frame (rescaled
-when the resolution changes). Core images use the EXR row order (top row
+when the resolution changes). The add-on's datablocks carry the custom
+property ``cvsss_map`` (the map's name): an image of the user's that has a
+map's name is never touched, and the map's datablock then takes Blender's
+next free name (``SSS Result.001``). Core images use the EXR row order (top row
 first); ``Image.pixels`` start at the bottom row, so rows are flipped here.
 Data maps are tagged Non-Color; the result stays scene-linear.
 """
@@ -35,20 +38,50 @@ def rgba_rows_flipped(array: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(out[::-1]).reshape(-1)
 
 
+#: Custom property that marks the add-on's map datablocks (value: the map's name).
+TAG = "cvsss_map"
+
+
+def _generated_float(image) -> bool:
+    return image.source == "GENERATED" and image.is_float and image.library is None
+
+
+def find_map(name: str):
+    """The add-on's datablock of map ``name`` (tagged :data:`TAG`), or None."""
+    for image in bpy.data.images:
+        if image.library is None and image.get(TAG) == name:
+            return image
+    return None
+
+
 def image_for(name: str, width: int, height: int, data: bool):
-    """The float image ``name`` at ``width`` x ``height``, reused when it exists."""
-    image = bpy.data.images.get(name)
-    if image is not None and (image.source != "GENERATED" or not image.is_float):
-        # Someone put a different kind of image under our name: replace it.
-        bpy.data.images.remove(image)
+    """The float image of map ``name`` at ``width`` x ``height``, reused when it exists.
+
+    Only the add-on's own datablock is reused (tagged :data:`TAG`). An untagged
+    generated float image of that name that nothing uses (an earlier version's)
+    is adopted; any other image of the user's keeps its name, pixels and users.
+    """
+    image = find_map(name)
+    if image is not None and not _generated_float(image):
+        # The user turned our image into another kind (a file, 8 bits): theirs now.
+        del image[TAG]
         image = None
     if image is None:
+        old = bpy.data.images.get(name)
+        if old is not None and old.get(TAG) is None and _generated_float(old) and old.users == 0:
+            image = old
+    if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
-    elif tuple(image.size) != (width, height):
-        image.scale(width, height)
+    image[TAG] = name
     colorspace = "Non-Color" if data else None
     if colorspace and image.colorspace_settings.name != colorspace:
         image.colorspace_settings.name = colorspace
+    if tuple(image.size) != (width, height):
+        # A generated image is regenerated at its generated size (a colour space change
+        # does it): that size, not only the buffer's (Image.scale).
+        image.generated_width, image.generated_height = width, height
+        if tuple(image.size) != (width, height):
+            image.scale(width, height)
     return image
 
 

@@ -42,9 +42,15 @@ def principled_nodes(node_tree, _seen: set | None = None) -> Iterator[tuple[obje
             yield from principled_nodes(node.node_tree, seen)
 
 
+def live_links(socket) -> list:
+    """The links into ``socket`` that Blender evaluates: a muted link passes nothing,
+    and the socket's own value counts (``socket.is_linked`` is true for muted links too)."""
+    return [link for link in socket.links if not link.is_muted]
+
+
 def _has_weight(node) -> bool:
     socket = node.inputs.get(WEIGHT)
-    return socket is not None and (socket.is_linked or socket.default_value > 0.0)
+    return socket is not None and (bool(live_links(socket)) or socket.default_value > 0.0)
 
 
 def _source_node(material):
@@ -173,7 +179,7 @@ def subsurface_weight(material) -> tuple[float, bool]:
     saved = _DISABLED.get(node.as_pointer())
     if saved is not None:  # forced to 0 for a pass render: the user's value counts
         return (1.0, True) if saved.links else (min(max(saved.value, 0.0), 1.0), False)
-    if socket.is_linked:
+    if live_links(socket):
         return 1.0, True
     return min(max(float(socket.default_value), 0.0), 1.0), False
 
@@ -182,8 +188,9 @@ def weight_source(material):
     """(node tree, output socket) feeding a linked Subsurface Weight, or None."""
     for tree, node in principled_nodes(getattr(material, "node_tree", None)):
         socket = node.inputs.get(WEIGHT)
-        if socket is not None and socket.is_linked and node == _source_node(material):
-            return tree, socket.links[0].from_socket
+        links = [] if socket is None else live_links(socket)
+        if links and node == _source_node(material):
+            return tree, links[0].from_socket
     return None
 
 
@@ -195,7 +202,7 @@ def unmodelled_inputs(material) -> list[str]:
     out = []
     for name in (RADIUS, SCALE):
         socket = node.inputs.get(name)
-        if socket is not None and socket.is_linked:
+        if socket is not None and live_links(socket):
             out.append(
                 f"material {material.name!r}: {name} is linked (textured); cvsss uses its "
                 "socket value everywhere, Cycles varies it per point"
@@ -271,7 +278,9 @@ class SSSDisabled(contextlib.AbstractContextManager):
     """Force Subsurface Weight to 0 on ``materials``; restore on exit, whatever happens.
 
     Linked weights are unlinked and animation or drivers on the weight muted,
-    so the render sees 0 on every frame.
+    so the render sees 0 on every frame. A muted link passes nothing: it stays
+    as it is (muted), and only the links Blender evaluates are removed and
+    put back.
     """
 
     def __init__(self, materials: Iterable) -> None:
@@ -288,7 +297,7 @@ class SSSDisabled(contextlib.AbstractContextManager):
                         tree,
                         node.name,
                         float(socket.default_value),
-                        [link.from_socket for link in socket.links],
+                        [link.from_socket for link in live_links(socket)],
                     )
                     self.saved.append(saved)
                     _DISABLED.setdefault(node.as_pointer(), saved)
@@ -296,7 +305,7 @@ class SSSDisabled(contextlib.AbstractContextManager):
                         if fcurve.data_path == path:
                             saved.muted.append((fcurve, fcurve.mute))
                             fcurve.mute = True
-                    for link in list(socket.links):
+                    for link in live_links(socket):
                         tree.links.remove(link)
                     socket.default_value = 0.0
         except BaseException:
@@ -314,7 +323,7 @@ class SSSDisabled(contextlib.AbstractContextManager):
             socket = node.inputs[WEIGHT]
             socket.default_value = saved.value
             for from_socket in saved.links:
-                if not any(link.from_socket == from_socket for link in socket.links):
+                if not any(link.from_socket == from_socket for link in live_links(socket)):
                     saved.node_tree.links.new(from_socket, socket)
             for fcurve, mute in saved.muted:
                 fcurve.mute = mute

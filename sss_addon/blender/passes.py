@@ -150,23 +150,32 @@ def scene_camera(scene) -> Camera:
             "are supported"
         )
     width, height = output_size(scene)
+    if width <= 0 or height <= 0:
+        raise RenderError(
+            f"the output is {width}x{height} pixels (Resolution "
+            f"{scene.render.resolution_x}x{scene.render.resolution_y} at "
+            f"{scene.render.resolution_percentage} %); raise the resolution or its %"
+        )
     r = scene.render
-    return Camera(
-        width=width,
-        height=height,
-        type=cam.type,
-        lens=float(cam.lens),
-        sensor_width=float(cam.sensor_width),
-        sensor_height=float(cam.sensor_height),
-        sensor_fit=cam.sensor_fit,
-        ortho_scale=float(cam.ortho_scale),
-        pixel_aspect_x=float(r.pixel_aspect_x),
-        pixel_aspect_y=float(r.pixel_aspect_y),
-        clip_start=float(cam.clip_start),
-        clip_end=float(cam.clip_end),
-        shift_x=float(cam.shift_x),
-        shift_y=float(cam.shift_y),
-    )
+    try:
+        return Camera(
+            width=width,
+            height=height,
+            type=cam.type,
+            lens=float(cam.lens),
+            sensor_width=float(cam.sensor_width),
+            sensor_height=float(cam.sensor_height),
+            sensor_fit=cam.sensor_fit,
+            ortho_scale=float(cam.ortho_scale),
+            pixel_aspect_x=float(r.pixel_aspect_x),
+            pixel_aspect_y=float(r.pixel_aspect_y),
+            clip_start=float(cam.clip_start),
+            clip_end=float(cam.clip_end),
+            shift_x=float(cam.shift_x),
+            shift_y=float(cam.shift_y),
+        )
+    except ValueError as exc:  # a setting the core's camera model refuses
+        raise RenderError(f"camera {obj.name!r}: {exc}") from None
 
 
 def engine_identifier(scene, engine: str) -> str:
@@ -384,13 +393,19 @@ class PassSetup(SceneSetup):
         """Write each linked Subsurface Weight to the value AOV ``cvsss_weight``.
 
         Runs before the weights are forced to 0, while their links still
-        exist; the core reads the AOV on those materials' pixels.
+        exist; the core reads the AOV on those materials' pixels. A node group
+        shared by several materials gets one AOV output: Cycles adds up the
+        AOV outputs a shader evaluates, so a second one would double the weight.
         """
+        done = set()
         for material in self.materials:
             source = sss_materials.weight_source(material)
             if source is None:
                 continue
             tree, from_socket = source
+            if tree.as_pointer() in done:
+                continue
+            done.add(tree.as_pointer())
             layer = self.view_layer
             if not any(aov.name == WEIGHT_AOV for aov in layer.aovs):
                 aov = layer.aovs.add()
@@ -609,8 +624,12 @@ def render_frame(
     sidecar = pass_sidecar(scene, frame, specs, view_layer)
     if denoise:
         sidecar["denoised"] = True
-    with contextlib.suppress(FileNotFoundError):
+    try:
         path.unlink()
+    except FileNotFoundError:
+        pass
+    except OSError as exc:  # a folder in its place, no permission
+        raise OutputError(path, exc) from None
     write_sidecar(path.with_suffix(".json"), sidecar, overwrite=True)
 
     render_to(scene, path, lambda temp: finish_pass_file(temp, scene, view_layer, sidecar, denoise))

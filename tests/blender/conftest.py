@@ -150,9 +150,24 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
                 out[f"{prefix}.{node.name}.in{i}.{socket.name}"] = _plain(socket.default_value)
         if node.bl_idname == "ShaderNodeGroup":
             _tree(node.node_tree, f"{prefix}>{node.name}", out, seen)
+        image = getattr(node, "image", None)
+        if image is not None:  # the image a texture node shows, and what it is
+            out[f"{prefix}.{node.name}.image"] = (
+                image.as_pointer(),
+                image.name,
+                image.source,
+                image.filepath,
+                image.is_float,
+            )
     out[f"{prefix}.links"] = tuple(
         sorted(
-            (lk.from_node.name, lk.from_socket.identifier, lk.to_node.name, lk.to_socket.identifier)
+            (
+                lk.from_node.name,
+                lk.from_socket.identifier,
+                lk.to_node.name,
+                lk.to_socket.identifier,
+                lk.is_muted,
+            )
             for lk in tree.links
         )
     )
@@ -162,8 +177,8 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
 
 
 def scene_state(scene) -> dict:
-    """Everything the pass render may touch: materials (every node input, links,
-    pass index), object pass indices, view layers (pass flags), render/image/Cycles
+    """Everything the pass render may touch: materials (every node input, links with
+    their mute flag, texture nodes' images, pass index), object pass indices, view layers (pass flags), render/image/Cycles
     settings, frame."""
     import bpy
 

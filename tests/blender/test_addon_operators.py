@@ -13,7 +13,7 @@ bpy = pytest.importorskip("bpy")
 from cvsss.core.io.exr import read_frame, read_result  # noqa: E402
 from cvsss.core.methods import make_processor  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
-from cvsss.sss_addon.blender import passes, render  # noqa: E402
+from cvsss.sss_addon.blender import images, passes, render  # noqa: E402
 from cvsss.sss_addon.blender.images import MAPS  # noqa: E402
 from cvsss.sss_addon.blender.properties import settings_to_params  # noqa: E402
 from cvsss.sss_addon.cli import main as cli  # noqa: E402
@@ -536,3 +536,70 @@ def test_eevee_render_reads_like_cycles(demo, tmp_path):
     assert frame.objects is not None
     for slot in (1, 2, 3):
         assert (frame.objects[frame.material == slot] > 0).mean() > 0.9
+
+
+def test_user_images_with_the_maps_names_are_left_alone(demo, tmp_path, snapshot):
+    """An image of the user's named like a map keeps its name, file, pixels and users; the
+    map takes Blender's next free name. An earlier version's map (untagged, unused) is
+    adopted, and the maps are reused by the next run."""
+    scene_state, state_diff = snapshot
+    demo.sss_settings.frame_end = 1
+    demo.sss_settings.use_reference = False
+    png = tmp_path / "texture.png"
+    source = bpy.data.images.new("texture", 4, 4)
+    source.pixels.foreach_set(np.linspace(0, 1, 64, dtype=np.float32))
+    source.filepath_raw = str(png)
+    source.file_format = "PNG"
+    source.save()
+    texture = bpy.data.images.load(str(png))
+    texture.name = "SSS Result"
+    painted = bpy.data.images.new("SSS Sample Count", 8, 8)  # 8 bits, generated
+    tree = bpy.data.materials["cvsss Skin"].node_tree
+    for image in (texture, painted):
+        tree.nodes.new("ShaderNodeTexImage").image = image
+    old_map = bpy.data.images.new("SSS Gamma", 2, 2, float_buffer=True)  # an earlier run's
+    pixels = np.empty(4 * 4 * 4, np.float32)
+    texture.pixels.foreach_get(pixels)
+    before = scene_state(demo)
+
+    assert bpy.ops.sss.render_sequence() == {"FINISHED"}
+
+    assert not state_diff(before, scene_state(demo))  # the texture nodes' images included
+    assert texture.name == "SSS Result" and texture.source == "FILE"
+    assert texture.filepath == str(png) and not texture.is_float
+    again = np.empty_like(pixels)
+    texture.pixels.foreach_get(again)
+    np.testing.assert_array_equal(again, pixels)
+    assert painted.name == "SSS Sample Count" and not painted.is_float
+    assert tuple(painted.size) == (8, 8)
+    maps = {name: images.find_map(name) for name in MAPS}
+    assert maps["SSS Result"].name == "SSS Result.001"
+    assert maps["SSS Sample Count"].name == "SSS Sample Count.001"
+    assert maps["SSS Gamma"] == old_map  # adopted
+    for name, image in maps.items():
+        assert image.is_float and tuple(image.size) == (48, 32), name
+    pointers = {name: image.as_pointer() for name, image in maps.items()}
+
+    assert bpy.ops.sss.apply_frame() == {"FINISHED"}
+    assert {name: images.find_map(name).as_pointer() for name in MAPS} == pointers
+    assert not any(image.name.endswith(".002") for image in bpy.data.images)
+
+
+def test_user_errors_are_one_message_without_traceback(demo, tmp_path, snapshot, capfd):
+    scene_state, state_diff = snapshot
+    demo.sss_settings.frame_end = 2
+    demo.sss_settings.use_reference = False
+    demo.render.resolution_percentage = 1  # 48x32 at 1 %: no pixel
+    before = scene_state(demo)
+    for op in (bpy.ops.sss.render_sequence, bpy.ops.sss.render_passes, bpy.ops.sss.apply_frame):
+        with pytest.raises(RuntimeError, match=r"the output is 0x0 pixels \(Resolution 48x32"):
+            op()
+        assert not state_diff(before, scene_state(demo))
+    demo.render.resolution_percentage = 100
+    (tmp_path / "out" / "passes" / "0002.exr").mkdir(parents=True)  # a folder in its place
+    before = scene_state(demo)
+    with pytest.raises(RuntimeError, match=r"cannot write .*0002\.exr"):
+        bpy.ops.sss.render_passes()
+    assert not state_diff(before, scene_state(demo))
+    captured = capfd.readouterr()
+    assert "Traceback" not in captured.err + captured.out
