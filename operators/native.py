@@ -27,18 +27,28 @@ class SSS_OT_finish_render(Operator):
         return native.active_session() is not None
 
     def execute(self, context):
+        session = native.active_session()
         try:
-            for _ in native.active_session().finish_steps():
+            for _ in session.finish_steps():
                 pass
         except Exception as exc:
             self.report({"ERROR"}, _message(exc))
             return {"CANCELLED"}
+        return self._ended(session)
+
+    def _ended(self, session):
+        """An error met while Blender rendered (a frame it could not stop at) is reported."""
+        if session.error is not None:
+            self.report({"ERROR"}, f"cvsss: {session.error}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, "cvsss: render finished")
         return {"FINISHED"}
 
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
-        self._steps = native.active_session().finish_steps()
+        self._session = native.active_session()
+        self._steps = self._session.finish_steps()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)
         wm.modal_handler_add(self)
@@ -66,8 +76,7 @@ class SSS_OT_finish_render(Operator):
             text = next(self._steps)
         except StopIteration:
             self._stop(context)
-            self.report({"INFO"}, "cvsss: render finished")
-            return {"FINISHED"}
+            return self._ended(self._session)
         except Exception as exc:
             self._stop(context)
             self.report({"ERROR"}, _message(exc))

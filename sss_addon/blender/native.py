@@ -352,20 +352,11 @@ class Session:
         self.filter = (
             StdoutFilter(str(self.folder)) if bpy.app.background and not deferred else None
         )
+        self.suspended: tuple[bool, bool] | None = None  # (setup, output) put aside for a save
         try:
             if not deferred:
                 self.output = output_scene(scene, self.job.view_layer.name)
-            self.setup = PassSetup(
-                scene,
-                self.job.materials,
-                self.job.view_layer,
-                engine,
-                self.job.normal,
-                self.job.denoise_passes,
-            ).__enter__()
-            r.filepath = str(self.passes / "pass_")
-            r.use_overwrite = True
-            r.use_placeholder = False
+            self.setup = self._switch()
         except BaseException:
             self.close()
             raise
@@ -383,6 +374,47 @@ class Session:
         precompile.start_background(
             self.job.params.backend, self.job.methods, _log, math.prod(output_size(scene))
         )
+
+    def _switch(self) -> PassSetup:
+        """The scene in the pass configuration, its passes written into the temporary folder."""
+        setup = PassSetup(
+            self.scene,
+            self.job.materials,
+            self.job.view_layer,
+            self.job.engine,
+            self.job.normal,
+            self.job.denoise_passes,
+        ).__enter__()
+        r = self.scene.render
+        r.filepath = str(self.passes / "pass_")
+        r.use_overwrite = True
+        r.use_placeholder = False
+        return setup
+
+    # -- saving while the render is finished (UI) ------------------------------------------
+    def suspend(self) -> None:
+        """Before a save: the user's settings back and the output scene gone, so the .blend
+        holds the user's scene only (:meth:`resume` after the save)."""
+        if not self.rendered or self.closed or self.suspended is not None:
+            return  # only between Blender's render and the end (the render thread is done)
+        self.suspended = (self.setup is not None, self.output is not None)
+        self.restore()
+        if self.output is not None:
+            bpy.data.scenes.remove(self.output)
+            self.output = None
+
+    def resume(self) -> None:
+        """After a save: what :meth:`suspend` put aside, again."""
+        if self.suspended is None:
+            return
+        setup, output = self.suspended
+        self.suspended = None
+        if self.closed:
+            return
+        if setup:
+            self.setup = self._switch()
+        if output:
+            self.output = output_scene(self.scene, self.job.view_layer.name)
 
     # -- history ---------------------------------------------------------------------------
     def _key(self) -> str:
@@ -421,36 +453,36 @@ class Session:
 
     def warm_up_steps(self, first: int) -> Iterator[str]:
         """Render and process the warm-up frames before ``first`` (one step each)."""
+        from .passes import render_frame
         from .render import warmup_frames
 
         frames = warmup_frames(first, self.warmup, self.step)
-        # A scene of its own has its own Render, so this nests inside the user's render.
-        copy = scene_copy(self.scene, "warm-up")
-        try:
-            layer = copy.view_layers[self.job.view_layer.name]
-            for index, frame in enumerate(frames, 1):
-                began = time.perf_counter()
+        for index, frame in enumerate(frames, 1):
+            began = time.perf_counter()
+            # A scene of its own has its own Render, so this nests inside the user's
+            # render. One per frame: between steps (a save in the UI) none exists.
+            copy = scene_copy(self.scene, "warm-up")
+            try:
+                layer = copy.view_layers[self.job.view_layer.name]
                 copy.frame_set(frame)
                 specs = sss_materials.material_specs(self.job.materials, copy)
                 with self._internal(), bpy.context.temp_override(scene=copy):
-                    from .passes import render_frame
-
                     path = render_frame(
                         copy, frame, self.passes, specs, layer, self.job.denoise_passes
                     )
-                frame_passes = self._read(frame, path)
-                precompile.prepare(
-                    self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), _log
-                )
-                self.stream.warm_up(frame_passes)
-                text = (
-                    f"warm-up frame {frame} ({index}/{len(frames)}): passes and post "
-                    f"{time.perf_counter() - began:.2f} s"
-                )
-                _log(text)
-                yield text
-        finally:
-            bpy.data.scenes.remove(copy)
+            finally:
+                bpy.data.scenes.remove(copy)
+            frame_passes = self._read(frame, path)
+            precompile.prepare(
+                self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), _log
+            )
+            self.stream.warm_up(frame_passes)
+            text = (
+                f"warm-up frame {frame} ({index}/{len(frames)}): passes and post "
+                f"{time.perf_counter() - began:.2f} s"
+            )
+            _log(text)
+            yield text
 
     # -- frames ------------------------------------------------------------------------------
     def _internal(self):
@@ -627,6 +659,10 @@ class Session:
                     text = self.display(write=bool(self.still and self.write_still))
                     _log(text)
                     yield text
+        except Exception as exc:  # closed below: its last line names the error
+            if self.error is None:
+                self.error = f"{type(exc).__name__}: {exc}"
+            raise
         finally:
             self.close()
 
@@ -786,11 +822,9 @@ def _ended(scene, cancelled: bool) -> None:
     session.cancelled = cancelled
     if session.deferred:
         return  # the main thread finishes (_poll)
-    try:
+    with contextlib.suppress(Exception):  # restored, and the error logged, by finish_steps
         for _ in session.finish_steps():
             pass
-    except Exception as exc:  # everything is restored by finish_steps
-        _log(f"error: {type(exc).__name__}: {exc}")
 
 
 @persistent
@@ -801,6 +835,21 @@ def on_render_complete(scene, *_args) -> None:
 @persistent
 def on_render_cancel(scene, *_args) -> None:
     _ended(scene, cancelled=True)
+
+
+@persistent
+def on_save_pre(*_args) -> None:
+    """A save while a render is being finished (UI): the user's scene goes to the file."""
+    session = _session
+    if session is not None:
+        session.suspend()
+
+
+@persistent
+def on_save_post(*_args) -> None:
+    session = _session
+    if session is not None:
+        session.resume()
 
 
 @persistent
@@ -847,13 +896,18 @@ _HANDLERS = {
     "render_complete": on_render_complete,
     "render_cancel": on_render_cancel,
     "load_pre": on_load_pre,
+    "save_pre": on_save_pre,
+    "save_post": on_save_post,
+    # Blender 4.3+: a save that failed (the file unwritable) also ends the suspension.
+    "save_post_fail": on_save_post,
 }
 
 
 def register() -> None:
     bpy.utils.register_class(ResultEngine)
     for name, handler in _HANDLERS.items():
-        getattr(bpy.app.handlers, name).append(handler)
+        if hasattr(bpy.app.handlers, name):
+            getattr(bpy.app.handlers, name).append(handler)
     if not bpy.app.background:
         bpy.app.timers.register(_poll, first_interval=1.0, persistent=True)
 
@@ -863,7 +917,7 @@ def unregister() -> None:
     if bpy.app.timers.is_registered(_poll):
         bpy.app.timers.unregister(_poll)
     for name, handler in _HANDLERS.items():
-        handlers = getattr(bpy.app.handlers, name)
+        handlers = getattr(bpy.app.handlers, name, ())
         if handler in handlers:
             handlers.remove(handler)
     if _session is not None:

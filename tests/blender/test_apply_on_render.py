@@ -311,6 +311,87 @@ def test_ui_escape_restores_and_keeps_written_frames(scene, tmp_path, snapshot, 
     assert [p.name for p in (tmp_path / "render").iterdir()] == ["f_0001.png"]
 
 
+def test_ui_save_while_finishing_saves_the_users_scene(scene, tmp_path, snapshot, ui):
+    """Ctrl-S between the finishing steps (the UI is live then): every saved file holds the
+    user's scene, not the pass configuration or the add-on's temporary scenes, and the
+    frames come out as without the saves."""
+    scene_state, state_diff = snapshot
+    scene.sss_settings.warmup_frames = 1
+    expected = _reference(scene, tmp_path / "ref", warmup=1)
+    before = scene_state(scene)
+    scenes = sorted(s.name for s in bpy.data.scenes)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    saved = []
+    for text in native.active_session().finish_steps():
+        path = tmp_path / f"saved{len(saved)}.blend"
+        assert bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True) == {"FINISHED"}
+        saved.append((path, text))
+    assert len(saved) >= 7  # the warm-up, three frames, three deliveries, the display
+    assert native.active_session() is None
+    assert state_diff(before, scene_state(scene)) == []
+    for frame, path in _frame_paths(scene).items():
+        want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
+        assert np.abs(_image_pixels(path) - want).max() <= 1 / 255 + 1e-6, frame
+    name = scene.name
+    for path, text in saved:
+        bpy.ops.wm.open_mainfile(filepath=str(path))
+        assert sorted(s.name for s in bpy.data.scenes) == scenes, text
+        diff = state_diff(before, scene_state(bpy.data.scenes[name]))
+        assert [d for d in diff if ".image: " not in d] == [], text
+
+
+def test_ui_reports_an_error_met_while_blender_rendered(scene, tmp_path, snapshot, ui, monkeypatch):
+    """An error in a handler on the render thread at the last frame cannot stop Blender's
+    render any more: the finishing operator reports it, and restores the scene."""
+    scene_state, state_diff = snapshot
+    before = scene_state(scene)
+    written = native.Session.frame_written
+
+    def broken(self, frame):
+        if frame == FRAMES[1]:
+            raise OSError("injected")
+        written(self, frame)
+
+    monkeypatch.setattr(native.Session, "frame_written", broken)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    with pytest.raises(RuntimeError, match="frame 3: OSError: injected"):
+        bpy.ops.sss.finish_render()
+    assert native.active_session() is None
+    assert state_diff(before, scene_state(scene)) == []
+    assert not (tmp_path / "render").exists()
+
+
+def test_background_error_at_the_last_frame_is_the_last_line(
+    scene, tmp_path, snapshot, capfd, monkeypatch
+):
+    """In background mode nothing can fail Blender's render after its last write: the frame
+    is not delivered, and cvsss's last line says why (README, Apply on Render, *Limits*)."""
+    scene_state, state_diff = snapshot
+    before = scene_state(scene)
+    original = native.Session.process_next
+
+    def broken(self):
+        if self.still or self.pending[0][0] == FRAMES[1]:
+            raise OSError("injected")
+        return original(self)
+
+    monkeypatch.setattr(native.Session, "process_next", broken)
+    bpy.ops.render.render(animation=True)
+    assert state_diff(before, scene_state(scene)) == []
+    assert sorted(p.name for p in (tmp_path / "render").iterdir()) == ["f_0001.png", "f_0002.png"]
+    lines = [line for line in capfd.readouterr().out.splitlines() if line.startswith("cvsss: ")]
+    assert lines[-1].startswith("cvsss: stopped after 2 delivered frame(s): frame 3: OSError")
+
+    # A still (-f, F12 with write_still): the same, where it said "done" before.
+    scene.frame_set(1)
+    before = scene_state(scene)
+    bpy.ops.render.render(write_still=True)
+    assert state_diff(before, scene_state(scene)) == []
+    lines = [line for line in capfd.readouterr().out.splitlines() if line.startswith("cvsss: ")]
+    assert lines[-1] == "cvsss: stopped after 0 delivered frame(s): OSError: injected", lines
+    assert native.active_session() is None
+
+
 def test_frame_by_frame_renders_continue_the_history(scene, tmp_path):
     """``blender -b -f 1..3`` renders one frame per call: the history goes on."""
     scene.sss_settings.warmup_frames = 1
