@@ -526,6 +526,23 @@ def frame_done(passes_dir: Path, frame: int, denoised: bool = False) -> bool:
     return record is not None and bool(record.get("denoised", False)) == denoised
 
 
+def pass_changes(passes_dir: Path, frame: int, sidecar: dict) -> list[str]:
+    """The fields of ``frame``'s existing pass sidecar that differ from ``sidecar``.
+
+    ``sidecar`` is what a render of the frame would write now
+    (:func:`pass_sidecar`, the scene at the frame): another resolution,
+    camera, material, Subsurface Weight, unit scale, view layer or engine
+    makes the existing passes stale. The ``denoised`` flag is
+    :func:`frame_done`'s. Empty when they agree (or nothing exists).
+    """
+    have = read_record(pass_path(passes_dir, frame).with_suffix(".json"))
+    if have is None:
+        return []
+    have = {k: v for k, v in have.items() if k != "denoised"}
+    want = json.loads(json.dumps(sidecar))  # tuples as lists, as read back
+    return sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
+
+
 #: Depth of the add-on's own renders in progress (see :func:`internal_render`).
 _internal = 0
 

@@ -338,7 +338,8 @@ class SSSSettings(PropertyGroup):
         description=(
             "Render pass frames again even if their files exist and start the post-process "
             "over (otherwise passes are reused and the post-process resumes where a run with "
-            "the same settings stopped)"
+            "the same settings stopped; passes made with another camera, resolution or "
+            "material stop the run with a message). Needed after changing lights or geometry"
         ),
         default=False,
     )

@@ -13,7 +13,9 @@ Layout under the output folder::
     metrics.csv                   one row per frame and method (core.run)
 
 The post-process is the one sequence driver, :class:`core.run.SequenceRun`.
-Pass frames that exist are reused unless ``overwrite``; the post-process
+Pass frames that exist are reused unless ``overwrite`` (made with another
+camera or materials than the scene has now, they stop the job:
+:func:`check_passes`); the post-process
 resumes where a run with the same passes, methods and parameters stopped
 (``existing="continue"``) and starts over otherwise or with ``overwrite``.
 The reference (1024 spp) costs as much as all other methods together: with
@@ -58,7 +60,9 @@ from .passes import (
     engine_identifier,
     frame_done,
     output_size,
+    pass_changes,
     pass_path,
+    pass_sidecar,
     render_frame,
     render_view_layer,
     scene_camera,
@@ -352,6 +356,32 @@ def prepare(
 
 
 # -- steps ------------------------------------------------------------------------------------
+def check_passes(job: Job, frame: int) -> None:
+    """RenderError when ``frame``'s existing passes were made with another camera, another
+    material or Subsurface Weight, another resolution… than the scene has now.
+
+    Passes are reused without *Overwrite* (a stopped render resumes); reusing
+    them after such a change would give results of the old settings. What the
+    sidecar does not record (lights, geometry, Cycles samples) cannot be seen.
+    """
+    scene = job.scene
+    before = scene.frame_current, scene.frame_subframe
+    try:
+        scene.frame_set(frame)
+        specs = sss_materials.material_specs(job.materials, scene)
+        now = pass_sidecar(scene, frame, specs, job.view_layer)
+    finally:
+        scene.frame_set(before[0], subframe=before[1])
+    changed = pass_changes(job.passes_dir, frame, now)
+    if changed:
+        raise RenderError(
+            f"{pass_path(job.passes_dir, frame)} was rendered with another "
+            f"{', '.join(c.replace('_', ' ') for c in changed)} than the scene has now: "
+            "turn on Overwrite (--overwrite) to render the passes again, or choose another "
+            "output folder"
+        )
+
+
 def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterator[Step]:
     """Render (or reuse) the pass file of each frame; one Step per frame.
 
@@ -382,6 +412,8 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                 and job.render_passes
                 and (job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes))
             )
+            if wanted and job.render_passes and not rendered:
+                check_passes(job, frame)
             # Made with the other denoise setting: said, never reused silently.
             redo = (
                 rendered
@@ -520,6 +552,13 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
     to :func:`run_of` the job.
     """
     run = run or run_of(job)
+    if job.render_passes and not job.overwrite:
+        # Finished frames are not looked at again: their passes are checked on the first.
+        first = next(
+            (f for f in job.frames if frame_done(job.passes_dir, f, job.denoise_passes)), None
+        )
+        if first is not None:
+            check_passes(job, first)
     if _renders_first(job, run):
         # A process of its own compiles the numba kernels while Blender renders (when
         # they are not cached yet); the first post-process waits for it.

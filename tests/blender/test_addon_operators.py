@@ -603,3 +603,43 @@ def test_user_errors_are_one_message_without_traceback(demo, tmp_path, snapshot,
     assert not state_diff(before, scene_state(demo))
     captured = capfd.readouterr()
     assert "Traceback" not in captured.err + captured.out
+
+
+def test_passes_made_with_other_settings_are_not_reused(demo, tmp_path, snapshot):
+    """Without Overwrite a frame's passes are reused (a stopped render resumes) only while
+    the scene would write the same sidecar: after another resolution or Subsurface Weight
+    the job stops with a message instead of giving results of the old settings."""
+    scene_state, state_diff = snapshot
+    out = tmp_path / "o"
+    exr = out / "passes" / "0001.exr"
+
+    def run(overwrite=False):
+        job = render.job_from_scene(
+            demo, frames=(1, 2), out=out, methods=["none"], reference=False, overwrite=overwrite
+        )
+        return list(render.iter_sequence(job))
+
+    assert [step.rendered for step in run()] == [True, True]
+    written = exr.stat().st_mtime_ns
+    assert [step.rendered for step in run()] == [False, False]  # the same scene: reused
+    assert exr.stat().st_mtime_ns == written
+    marble = bpy.data.materials["cvsss Marble"].node_tree.nodes["Principled BSDF"]
+    for change, what in (
+        (lambda: setattr(demo.render, "resolution_x", 40), "camera than"),
+        (
+            lambda: setattr(marble.inputs["Subsurface Weight"], "default_value", 0.5),
+            "camera, materials than",  # the two changes so far
+        ),
+    ):
+        change()
+        before = scene_state(demo)
+        for op in (run, bpy.ops.sss.render_sequence, bpy.ops.sss.render_passes):
+            if op is not run:
+                demo.sss_settings.output_dir = str(out)
+            with pytest.raises((RuntimeError, render.RenderError), match=f"another {what}"):
+                op()
+            assert not state_diff(before, scene_state(demo))
+        assert exr.stat().st_mtime_ns == written
+    assert [step.rendered for step in run(overwrite=True)] == [True, True]
+    assert read_frame(exr).shape == (32, 40)
+    assert [step.rendered for step in run()] == [False, False]
