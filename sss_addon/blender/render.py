@@ -370,6 +370,8 @@ def check_passes(job: Job, frame: int) -> None:
         scene.frame_set(frame)
         specs = sss_materials.material_specs(job.materials, scene)
         now = pass_sidecar(scene, frame, specs, job.view_layer)
+        # The pass render switches the engine to the job's (EEVEE passes of a Cycles scene).
+        now["engine"] = engine_identifier(scene, job.engine)
     finally:
         scene.frame_set(before[0], subframe=before[1])
     changed = pass_changes(job.passes_dir, frame, now)

@@ -623,6 +623,20 @@ def test_passes_made_with_other_settings_are_not_reused(demo, tmp_path, snapshot
     written = exr.stat().st_mtime_ns
     assert [step.rendered for step in run()] == [False, False]  # the same scene: reused
     assert exr.stat().st_mtime_ns == written
+    # Passes of another engine than the scene's (EEVEE passes of this Cycles scene) are
+    # checked against the engine the job renders with.
+    other = tmp_path / "eevee" / "passes"
+    other.mkdir(parents=True)
+    sidecar = json.loads((out / "passes" / "0001.json").read_text())
+    sidecar["engine"] = passes.engine_identifier(demo, "EEVEE")
+    (other / "0001.json").write_text(json.dumps(sidecar))
+    for engine, stale in (("EEVEE", False), ("CYCLES", True)):
+        job = render.job_from_scene(demo, frames=(1, 1), out=other.parent, engine=engine)
+        if stale:
+            with pytest.raises(render.RenderError, match="another engine than"):
+                render.check_passes(job, 1)
+        else:
+            render.check_passes(job, 1)
     marble = bpy.data.materials["cvsss Marble"].node_tree.nodes["Principled BSDF"]
     for change, what in (
         (lambda: setattr(demo.render, "resolution_x", 40), "camera than"),
