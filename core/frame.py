@@ -22,6 +22,9 @@ BACKGROUND_DEPTH = 1e9
 #: Motion vectors are clipped to ±this many pixels (far beyond any image).
 MAX_MOTION = 1e7
 
+#: Largest material slot: Blender's Pass Index (the Material Index pass) is at most 32767.
+MAX_SLOT = 2**15 - 1
+
 #: Object indices are clipped to [0, this] (the compiled kernel keeps slot and object
 #: in one float32, exact below 2**24).
 MAX_OBJECTS = 2**15
@@ -58,8 +61,9 @@ class MaterialSpec:
     weight: float = 1.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.slot, bool) or not isinstance(self.slot, int) or self.slot < 1:
-            raise ValueError(f"material slot must be an integer >= 1, got {self.slot!r}")
+        slot = self.slot
+        if isinstance(slot, bool) or not isinstance(slot, int) or not 1 <= slot <= MAX_SLOT:
+            raise ValueError(f"material slot must be an integer in [1, {MAX_SLOT}], got {slot!r}")
         d = tuple(float(v) for v in self.d)
         if len(d) != 3 or not all(np.isfinite(d)) or min(d) < 0:
             raise ValueError(
@@ -85,8 +89,11 @@ class MaterialSpec:
 
     @classmethod
     def from_dict(cls, data: dict) -> MaterialSpec:
+        slot = data["slot"]
+        if isinstance(slot, float) and slot.is_integer():  # 3.0 as written by some tools
+            slot = int(slot)
         return cls(
-            slot=int(data["slot"]),
+            slot=slot,
             name=str(data.get("name", f"slot{data['slot']}")),
             d=tuple(data["d"]),
             profile=str(data.get("profile", "burley")),

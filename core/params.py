@@ -156,7 +156,10 @@ def _check_range(name: str, value: Any, spec: Spec) -> None:
         left = "(" if spec.lo_open else "["
         right = ")" if spec.hi_open or math.isinf(hi) else "]"
         hi_text = "inf" if math.isinf(hi) else f"{hi:g}"
-        raise ParameterError(f"{name} must be in {left}{lo:g}, {hi_text}{right}, got {value:g}")
+        got = f"{value:g}"
+        if got in (f"{lo:g}", hi_text):  # 1.0000001 is not "1": all its digits
+            got = repr(float(value))
+        raise ParameterError(f"{name} must be in {left}{lo:g}, {hi_text}{right}, got {got}")
 
 
 def _check_int(name: str, value: Any, spec: Spec) -> None:

@@ -466,7 +466,8 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
     lighting_passes = ["Diffuse Direct"]
     lighting = arrays["Diffuse Direct"].copy()
     if "Diffuse Indirect" in arrays:
-        lighting += arrays["Diffuse Indirect"]
+        with np.errstate(over="ignore"):  # past float32: inf, repaired and counted below
+            lighting += arrays["Diffuse Indirect"]
         lighting_passes.append("Diffuse Indirect")
     motion = motion_from_vector(arrays["Vector"]) if "Vector" in arrays else None
     sss_weight = None
@@ -610,7 +611,13 @@ def list_frames(directory: str | os.PathLike) -> list[tuple[int, Path]]:
         raise PassError(f"{name}: cannot list folder ({exc.strerror or exc})") from None
     for entry in entries:
         match = _FRAME_NAME.match(entry.name)
-        if match is None or not entry.is_file():
+        if match is None:
+            continue
+        try:
+            is_file = entry.is_file()
+        except OSError as exc:  # listed but not entered (a folder without its x bit)
+            raise PassError(f"{name}: cannot open {entry.name} ({exc.strerror or exc})") from None
+        if not is_file:
             continue
         number = int(match.group(1))
         if number in frames:

@@ -157,7 +157,7 @@ def read_sidecar(path: str | os.PathLike, exr_path: str | os.PathLike | None = N
             if not isinstance(entry, dict):
                 raise TypeError(f"expected an object, got {type(entry).__name__}")
             spec = MaterialSpec.from_dict(entry)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             detail = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
             raise PassError(f"{name}: invalid material #{i} ({detail})") from None
         if spec.slot in materials:

@@ -128,6 +128,8 @@ class ProfileChoice:
                 raise ValueError(
                     f"material must be a preset name or SLOT=PRESET pairs, got {text!r}"
                 ) from None
+            if any(number == seen for seen, _ in pairs):
+                raise ValueError(f"material: slot {number} is given twice in {text!r}")
             pairs.append((number, presets.get(name.strip()).name))
         return None, tuple(pairs)
 
@@ -148,6 +150,12 @@ class ProfileChoice:
     def apply(self, materials: Mapping[int, object]) -> dict[int, object]:
         """Materials (slot → MaterialSpec) with this choice applied."""
         by_slot = dict(self.slot_materials)
+        unknown = sorted(set(by_slot) - set(materials))
+        if unknown:
+            raise ProfileError(
+                f"material: slot {unknown[0]} is not a material of the passes "
+                f"(their slots: {', '.join(str(s) for s in sorted(materials)) or 'none'})"
+            )
         out = {}
         for slot, spec in materials.items():
             options = dict(spec.options)

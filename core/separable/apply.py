@@ -98,6 +98,11 @@ def _pixels(geom: Geometry) -> _Pixels:
     mat = geom.mat[order]
     slots, starts, lengths = np.unique(mat, return_index=True, return_counts=True)
     runs = [(int(s), int(a), int(a + n)) for s, a, n in zip(slots, starts, lengths)]
+    # A footprint below float32's range (a depth of 1e-40) gives an infinite 1/footprint:
+    # its taps land off the image and read the centre, as any tap that leaves it.
+    with np.errstate(over="ignore"):
+        inv_fw = (1.0 / geom.fw[order]).astype(np.float32)
+        inv_fh = (1.0 / geom.fh[order]).astype(np.float32)
     return _Pixels(
         order,
         runs,
@@ -108,8 +113,8 @@ def _pixels(geom: Geometry) -> _Pixels:
         geom.y[order],
         mat,
         geom.depth[order].astype(np.float32),
-        (1.0 / geom.fw[order]).astype(np.float32),
-        (1.0 / geom.fh[order]).astype(np.float32),
+        inv_fw,
+        inv_fh,
         geom.origin,
         geom.image_shape,
         None if geom.core is None else geom.core[order],

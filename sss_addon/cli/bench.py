@@ -423,6 +423,10 @@ def run_bench(
     dict, the content of bench.json (before NaN → null)
     """
     cfg = config or bench.BenchConfig()
+    if passes is not None:
+        from ...core.io.exr import list_frames
+
+        list_frames(passes)  # a missing or empty folder is said now, not after the JIT
     out = Path(out)
     make_folder(out)
     start = time.perf_counter()

@@ -66,15 +66,23 @@ def parse_methods(text: str) -> list[str]:
     return names
 
 
+#: Blender's last frame number (MAXFRAME); also the largest side of a render (pixels).
+MAX_FRAME = 1048574
+MAX_SIDE = 65536
+
+
 def parse_frames(text: str) -> tuple[int, int]:
-    """``"A-B"`` or ``"A"`` -> inclusive (A, B) with 0 <= A <= B."""
+    """``"A-B"`` or ``"A"`` -> inclusive (A, B) with 0 <= A <= B <= MAX_FRAME."""
     parts = text.strip().split("-")
     try:
         start, end = (int(parts[0]), int(parts[-1])) if len(parts) <= 2 else (None, None)
     except ValueError:
         start = end = None
-    if start is None or start < 0 or end < start:
-        raise UserError(f"--frames must be A-B with 0 <= A <= B, or one frame A; got {text!r}")
+    if start is None or start < 0 or end < start or end > MAX_FRAME:
+        raise UserError(
+            f"--frames must be A-B with 0 <= A <= B <= {MAX_FRAME} (Blender's last frame), "
+            f"or one frame A; got {text!r}"
+        )
     return start, end
 
 
@@ -604,10 +612,12 @@ def _demo(args: argparse.Namespace) -> int:
     truth = TruthPlan(every=args.ground_truth_every, samples=args.ground_truth_spp)
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))
-        if width < 1 or height < 1:
+        if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
             raise ValueError
     except ValueError:
-        raise UserError(f"--res must be WIDTHxHEIGHT in pixels, got {args.res!r}") from None
+        raise UserError(
+            f"--res must be WIDTHxHEIGHT in pixels, 1 to {MAX_SIDE} each, got {args.res!r}"
+        ) from None
     try:
         run_demo(
             args.out,
@@ -669,13 +679,37 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, PassError, OutputError, FileExistsError, CheckpointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError as exc:
+        detail = str(exc) or "the allocation failed"
+        print(f"error: not enough memory ({detail}); use a smaller size", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
-        print(
-            "error: interrupted; finished frames were kept (post: rerun with --resume "
-            "to continue)",
-            file=sys.stderr,
-        )
-        return 130
+        return _interrupted()
+    except SystemError as exc:
+        # Ctrl-C inside a compiled (numba) kernel surfaces as a SystemError whose context
+        # is the KeyboardInterrupt.
+        if not _from_interrupt(exc):
+            raise
+        return _interrupted()
+
+
+def _from_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _interrupted() -> int:
+    print(
+        "error: interrupted; finished frames were kept (post: rerun with --resume to continue)",
+        file=sys.stderr,
+    )
+    return 130
 
 
 if __name__ == "__main__":

@@ -157,6 +157,9 @@ def _local_cluster(distributed, workers: int):
         processes=True,
         host="127.0.0.1",
         dashboard_address=None,
+        # No dashboard, but the scheduler still serves HTTP (health routes); by default on
+        # port 8787, with a warning on stderr when another Dask holds it: any free port.
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         silence_logs=logging.CRITICAL,
         memory_limit=0,
     )

@@ -47,6 +47,29 @@ def test_post_with_two_workers_equals_post(moving_passes, plain, tmp_path):
 
 
 @pytest.mark.timeout(120)
+def test_local_cluster_needs_no_free_port_8787(moving_passes, plain, tmp_path, recwarn):
+    """Dask's scheduler serves HTTP on port 8787 unless told otherwise, and warns on stderr
+    when another Dask holds it (as on a shared machine): the local cluster takes any free
+    port, silently."""
+    import socket
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:  # another process holds it already: the case itself
+        holder.close()
+    try:
+        out = tmp_path / "out"
+        argv = ["post", str(moving_passes), "--out", str(out), *ARGS, "--workers", "1"]
+        assert cli.main([*argv, "--tile", "40"]) == 0
+    finally:
+        holder.close()
+    assert not [w for w in recwarn if "already in use" in str(w.message)]
+    assert output_differences(plain, out) == []
+
+
+@pytest.mark.timeout(120)
 def test_post_on_a_running_scheduler(moving_passes, plain, tmp_path):
     import distributed
 

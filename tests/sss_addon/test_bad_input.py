@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import builtins
 import errno
+import json
 import os
 import shutil
 from pathlib import Path
@@ -130,6 +131,19 @@ def test_sidecar_that_lies_about_the_size(passes, tmp_path, capfd):
     assert_one_error(code, err, "0002", "does not match")
 
 
+@pytest.mark.parametrize("slot", [float("inf"), 1e300, 10**30, 1.5, 40000, 0])
+def test_sidecar_material_slot_out_of_range(passes, tmp_path, capfd, slot):
+    """A slot is a Material Index (Blender's Pass Index: 1…32767); anything else, however
+    large, is one message naming the sidecar, before any frame is written."""
+    path = passes / "0002.json"
+    data = json.loads(path.read_text())
+    data["materials"][0]["slot"] = slot
+    path.write_text(json.dumps(data))  # inf as JSON's Infinity, which Python reads back
+    code, err = run_main(post(passes, tmp_path / "out"), capfd)
+    assert_one_error(code, err, "0002.json", "material slot must be an integer in [1, 32767]")
+    assert not (tmp_path / "out" / "as_ocv" / "0001.exr").exists()
+
+
 def test_gap_in_the_sequence_is_refused_unless_allowed(tmp_path, capfd):
     passes = write_sequence(tmp_path / "passes", [1, 2, 4, 7, 8])
     code, err = run_main(post(passes, tmp_path / "out"), capfd)
@@ -161,6 +175,26 @@ def test_nan_passes_are_repaired_with_a_warning(passes, tmp_path, capfd):
         assert np.all(np.isfinite(res[layer]))
 
 
+def test_extreme_finite_values_give_no_numpy_warning(passes, tmp_path, capfd):
+    """Lighting near float32's top (Direct + Indirect overflows) and a denormal depth:
+    repaired or handled with the documented warning line only."""
+
+    def edit(name, channels):
+        if name.endswith(("Diffuse Direct", "Diffuse Indirect")):
+            for c in channels.values():
+                c[2:6, 2:6] = 3e38
+        if name.endswith("Depth"):
+            for c in channels.values():
+                c[8:12, 8:12] = 1e-40
+
+    rewrite_exr(passes / "0002.exr", edit=edit)
+    code, err = run_main(post(passes, tmp_path / "out", "--method", "separable,as_ccv"), capfd)
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: "), err
+    assert "0002.exr: repaired 48 non-finite" in lines[0]
+
+
 def test_empty_or_missing_pass_folder(tmp_path, capfd):
     code, err = run_main(post(tmp_path / "nope", tmp_path / "out"), capfd)
     assert_one_error(code, err, "nope", "no such folder")
@@ -184,6 +218,7 @@ def test_empty_or_missing_pass_folder(tmp_path, capfd):
         ("--beta-min", "0", "beta_min must be in [1, 4096]"),
         ("--beta-max", "0", "beta_max must be in [1, 4096]"),
         ("--eta-cv", "0", "eta_cv must be in (0, 1]"),
+        ("--eta-cv", "1.0000001", "eta_cv must be in (0, 1], got 1.0000001"),
         ("--fixed-spp", "0", "fixed_spp must be in [1, 4096]"),
         ("--reference-spp", "-4", "reference_spp must be in [1, 4096]"),
         ("--seed", "-1", "seed must be in [0, 4294967295]"),
@@ -265,6 +300,22 @@ def test_unwritable_output_folder(good, tmp_path, capfd, monkeypatch):
     monkeypatch.undo()
     assert_one_error(code, err, str(out), "Permission denied")
     assert list(out.iterdir()) == []
+
+
+def test_pass_folder_listed_but_not_entered(passes, tmp_path, capfd, monkeypatch):
+    # A folder with read but no execute permission (simulated: tests may run as root):
+    # its names list, but looking at an entry is refused.
+    real = Path.is_file
+
+    def refused(self):
+        if self.parent == passes:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), os.fspath(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "is_file", refused)
+    code, err = run_main(post(passes, tmp_path / "out"), capfd)
+    monkeypatch.undo()
+    assert_one_error(code, err, str(passes), "cannot open 0001.exr", "Permission denied")
 
 
 class DiskFull:
@@ -373,6 +424,7 @@ def test_full_disk_mid_run_then_resume(good, tmp_path, capfd, monkeypatch):
         (["--eta", "0"], ["--eta: ", "eta must be in (0, 1]"]),
         (["--beta-min", "9", "--beta-max", "8"], ["beta_min must be <= beta_max"]),
         (["--frames", "5-2"], ["--frames must be A-B", "'5-2'"]),
+        (["--frames", "2147483648"], ["B <= 1048574 (Blender's last frame)", "'2147483648'"]),
         (["{missing}"], ["missing.blend", "no such .blend file"]),
         (["--ground-truth", "--ground-truth-spp", "0"], ["--ground-truth-spp must be in [1, "]),
         (["--ground-truth-every", "0"], ["--ground-truth-every must be >= 1, got 0"]),
@@ -383,6 +435,23 @@ def test_render_bad_input(tmp_path, capfd, args, fragments):
     args = [a.replace("{missing}", str(tmp_path / "missing.blend")) for a in args]
     code, err = run_main(["render", *args, "--out", str(tmp_path / "out")], capfd)
     assert_one_error(code, err, *fragments)
+
+
+@pytest.mark.parametrize("res", ["99999999x99999999", "65537x10", "0x10"])
+def test_demo_resolution_out_of_range(tmp_path, capfd, res):
+    argv = ["demo", "--source", "synthetic", "--out", str(tmp_path / "o"), "--res", res]
+    code, err = run_main(argv, capfd)
+    assert_one_error(code, err, "--res must be WIDTHxHEIGHT in pixels, 1 to 65536 each", res)
+    assert not (tmp_path / "o").exists()  # refused before anything is made
+
+
+def test_out_of_memory_is_one_message(passes, tmp_path, capfd, monkeypatch):
+    def exhausted(*_args, **_kwargs):
+        raise MemoryError("Unable to allocate 142. PiB")
+
+    monkeypatch.setattr("cvsss.core.run.write_result", exhausted)
+    code, err = run_main(post(passes, tmp_path / "out"), capfd)
+    assert_one_error(code, err, "not enough memory (Unable to allocate 142. PiB)")
 
 
 @pytest.mark.bpy

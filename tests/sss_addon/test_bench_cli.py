@@ -24,6 +24,7 @@ from cvsss.core.mc.history import History
 from cvsss.core.studies import cv1d, fig2
 from cvsss.core.synthetic import scene_frame
 from cvsss.sss_addon.cli import bench, studies
+from cvsss.sss_addon.cli import main as cli_main
 from cvsss.sss_addon.cli.params import UserError
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -400,3 +401,18 @@ def test_resolution_flag_is_checked_by_the_parser(capsys):
     assert exc.value.code == 2
     assert "WIDTHxHEIGHT" in capsys.readouterr().err
     assert np.array_equal(_args("fp16", "--res", "8X4").res, (8, 4))
+
+
+def test_missing_pass_folder_is_refused_before_the_jit(tmp_path, monkeypatch, capsys):
+    """``--passes`` naming no pass folder is one message at once, not after the kernels'
+    compile (about two minutes on a clean clone)."""
+
+    def compile_first():
+        raise AssertionError("measure_jit ran before the pass folder was checked")
+
+    monkeypatch.setattr("cvsss.sss_addon.cli.bench.measure_jit", compile_first)
+    argv = ["bench", "--quick", "--no-plots", "--out", str(tmp_path / "o")]
+    argv += ["--passes", str(tmp_path / "nonexist"), "--sections", "pareto"]
+    assert cli_main.main(argv) == 2
+    assert capsys.readouterr().err.strip() == f"error: {tmp_path / 'nonexist'}: no such folder"
+    assert not (tmp_path / "o").exists()

@@ -131,6 +131,8 @@ def test_profile_changes_the_result(passes, tmp_path):
         (["--profile", "dipole"], "the dipole profile needs a measured preset"),
         (["--material", "jelly"], "valid presets: apple"),
         (["--material", "x=skin1"], "SLOT=PRESET"),
+        (["--material", "1=skin1,1=marble"], "slot 1 is given twice"),
+        (["--material", "99=skin1"], "slot 99 is not a material of the passes (their slots: 1, 2"),
         (
             ["--method", "separable", "--kernel", "gaussians", "--gaussians", "9"],
             "gaussians must be in [1, 6]",

@@ -195,6 +195,29 @@ def test_interrupt_exits_130_and_points_to_resume(passes, tmp_path, monkeypatch,
     assert "--resume" in capsys.readouterr().err
 
 
+def test_interrupt_inside_a_compiled_kernel_is_an_interrupt(passes, tmp_path, monkeypatch, capsys):
+    """Ctrl-C while numba runs surfaces as a SystemError raised while the KeyboardInterrupt
+    was handled (seen in a real process): the same exit 130, no traceback. Any other
+    SystemError stays an error."""
+
+    def interrupt(*_args, **_kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher returned a result with an exception set") from None
+
+    monkeypatch.setattr("cvsss.core.run.write_result", interrupt)
+    assert cli.main(post_argv(passes, tmp_path / "out")) == 130
+    assert "--resume" in capsys.readouterr().err
+
+    def broken(*_args, **_kwargs):
+        raise SystemError("not an interrupt")
+
+    monkeypatch.setattr("cvsss.core.run.write_result", broken)
+    with pytest.raises(SystemError, match="not an interrupt"):
+        cli.main(post_argv(passes, tmp_path / "out2"))
+
+
 def test_existing_outputs_are_never_overwritten_without_flag(passes, full, tmp_path, capsys):
     out = tmp_path / "out"
     shutil.copytree(full, out)
