@@ -149,8 +149,15 @@ def _check_at_least_one(flag: str, value: int) -> None:
         raise UserError(f"{flag} must be >= 1, got {value}")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors as one line (the usage is a ``--help`` away), like ours."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="cvsss",
         description="Adaptive control-variate screen-space subsurface scattering.",
     )

@@ -240,6 +240,10 @@ def test_flag_that_is_not_a_number(good, tmp_path, capfd):
     assert exc.value.code == 2
     err = capfd.readouterr().err
     assert "argument --eta: invalid float value: 'fast'" in err and "Traceback" not in err
+    # One line, as every other error (the usage is a --help away).
+    assert err.strip().splitlines() == [
+        "error: cvsss post: argument --eta: invalid float value: 'fast' (see cvsss post --help)"
+    ]
 
 
 def test_resume_and_overwrite_exclude_each_other(good, tmp_path, capfd):
