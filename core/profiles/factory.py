@@ -36,8 +36,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -367,7 +369,15 @@ class ProfileCache:
             )
         )
         if key != self._key:
-            self._profile = frame_profile(frame, self.params, self.choice)
+            try:
+                self._profile = frame_profile(frame, self.params, self.choice)
+            except ProfileError as exc:
+                source = getattr(frame, "source", None)
+                if not source:
+                    raise
+                # Name the file the materials came from (its sidecar).
+                sidecar = os.fspath(Path(source).with_suffix(".json"))
+                raise ProfileError(f"{exc} (the materials of {sidecar})") from None
             self._key = key
         return self._profile
 

@@ -144,6 +144,15 @@ def test_sidecar_material_slot_out_of_range(passes, tmp_path, capfd, slot):
     assert not (tmp_path / "out" / "as_ocv" / "0001.exr").exists()
 
 
+def test_sidecar_material_that_no_profile_takes_names_its_file(passes, tmp_path, capfd):
+    path = passes / "0002.json"
+    data = json.loads(path.read_text())
+    data["materials"][0]["profile"] = "dipole"  # without a preset: no parameters
+    path.write_text(json.dumps(data))
+    code, err = run_main(post(passes, tmp_path / "out"), capfd)
+    assert_one_error(code, err, "the dipole profile needs", f"(the materials of {path})")
+
+
 def test_gap_in_the_sequence_is_refused_unless_allowed(tmp_path, capfd):
     passes = write_sequence(tmp_path / "passes", [1, 2, 4, 7, 8])
     code, err = run_main(post(passes, tmp_path / "out"), capfd)
