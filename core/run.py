@@ -9,7 +9,8 @@ and resumes from those checkpoints.
 Layout written under ``out``::
 
     out/<method>/0001.exr           result layers (core.io.exr.write_result)
-    out/<method>/.checkpoint.npz    history + metric rows after the last finished frame
+    out/<method>/.checkpoint.npz    history + metric rows after the last finished frame,
+                                    with each finished frame's pass files (size, mtime)
     out/metrics.csv                 one row per frame and method (METRICS_FIELDS)
 
 History is carried from frame to frame per method, so frames are processed in
@@ -47,7 +48,11 @@ Existing results
 ``"resume"``
     Continue each method after its checkpoint; bit-identical to an
     uninterrupted run (timings aside). Refused when the checkpoint belongs
-    to another run (other passes, methods or parameters).
+    to another run (other passes, methods or parameters), when a pass file
+    of a frame it covers changed since (size or modification time, see
+    ``inputs`` of :class:`SequenceRun`), when it is damaged, and when
+    ``metrics.csv`` holds rows of a method that is not resumed from its
+    checkpoint (rewriting it would drop them).
 ``"overwrite"``
     Start over, replacing results, checkpoints and metrics.
 ``"continue"``
@@ -82,7 +87,7 @@ import dataclasses
 import io
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -98,6 +103,7 @@ from .io.atomic import make_folder, remove_stale_temporaries, write_text
 from .io.errors import CheckpointError, PassError
 from .io.exr import list_frames, quiet_native_stderr, read_combined, read_frame, write_result
 from .io.sidecar import read_sidecar
+from .mc.processor import check_state
 from .methods import MethodOptions, Processor, get_method, make_processor
 from .params import SSSParams
 from .result import FrameResult
@@ -126,7 +132,57 @@ CHECKPOINT_NAME = ".checkpoint.npz"
 
 EXISTING = ("error", "resume", "overwrite", "continue")
 
+#: The arrays a checkpoint keeps for light_change and flicker of the next frame.
+LAST_ARRAYS = ("run_last_combined", "run_last_light", "run_last_y")
+
 Log = Callable[[str], None] | None
+
+#: (path, size in bytes, modification time in ns) of each file a frame is read from.
+Stamps = Sequence[tuple[str, int, int]]
+
+
+def file_stamps(paths: Sequence[str | os.PathLike]) -> list[tuple[str, int, int]]:
+    """(path, size in bytes, ``st_mtime_ns``) of each of ``paths``: what tells a
+    changed pass file from the one a checkpoint's frame was computed from
+    (``stat`` only: hashing 4K passes would cost more than reading them)."""
+    stamps = []
+    for path in paths:
+        st = os.stat(path)
+        stamps.append((os.fspath(path), int(st.st_size), int(st.st_mtime_ns)))
+    return stamps
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_stamps(value: Any) -> bool:
+    """Whether ``value`` is a checkpoint's record of a frame's files."""
+    return isinstance(value, list) and all(
+        isinstance(v, list)
+        and len(v) == 3
+        and isinstance(v[0], str)
+        and _is_int(v[1])
+        and _is_int(v[2])
+        for v in value
+    )
+
+
+def _metric_methods(path: Path) -> set[str]:
+    """The methods that have rows in the metrics file ``path``.
+
+    Raises
+    ------
+    CheckpointError
+        The file cannot be read as CSV text.
+    """
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return {row.get("method") or "" for row in csv.DictReader(fh)}
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise CheckpointError(
+            f"{os.fspath(path)}: cannot be read ({exc}); pass --overwrite to start over"
+        ) from None
 
 
 def format_clock(seconds: float) -> str:
@@ -241,14 +297,17 @@ def _signature_difference(old: dict, new: dict) -> str:
     if old.get("source") != new["source"]:
         return f"passes from {old.get('source')}, now {new['source']}"
     if old.get("methods") != new["methods"]:
-        return f"methods {','.join(old.get('methods') or [])}, now {','.join(new['methods'])}"
+        methods = old.get("methods")
+        methods = ",".join(map(str, methods)) if isinstance(methods, list) else repr(methods)
+        return f"methods {methods}, now {','.join(new['methods'])}"
     if old.get("reference_every") != new["reference_every"]:
         return f"reference every {old.get('reference_every')} frames, now {new['reference_every']}"
     if old.get("warmup_frames", 0) != new.get("warmup_frames", 0):
         return f"warm-up {old.get('warmup_frames', 0)} frames, now {new.get('warmup_frames', 0)}"
     diffs = []
     for group in ("params", "options"):
-        a, b = old.get(group) or {}, new[group]
+        a, b = old.get(group), new[group]
+        a = a if isinstance(a, dict) else {}
         diffs += [f"{k} {a.get(k)!r} -> {b[k]!r}" for k in b if a.get(k) != b[k]]
     return "parameters " + ", ".join(diffs)
 
@@ -262,11 +321,24 @@ class _MethodRun:
     folder: Path
     done: list[int] = field(default_factory=list)
     rows: list[dict] = field(default_factory=list)
+    #: Per frame of ``done``, its files as [name, size, mtime_ns] lists (None: unknown).
+    inputs: list[list | None] = field(default_factory=list)
     resumed: bool = False
 
     @property
     def checkpoint(self) -> Path:
         return self.folder / CHECKPOINT_NAME
+
+
+@dataclass
+class _Checkpoint:
+    """A method's checkpoint, checked against the run (:meth:`SequenceRun._checked`)."""
+
+    done: list[int]
+    rows: list[dict]
+    inputs: list[list | None]
+    arrays: dict[str, np.ndarray]
+    shape: tuple[int, int] | None  # (H, W) of its per-pixel arrays, None without
 
 
 @dataclass
@@ -315,13 +387,22 @@ class SequenceRun:
         at the end. The arrays of a processor's ``state()`` must then stay
         unchanged by later frames, as the project's processors' do (a History
         is reprojected into new arrays every frame). None: written inline.
+    inputs : mapping frame number -> (path, size in bytes, mtime in ns) of each
+        file the frame is read from (:func:`file_stamps`), optional. The
+        checkpoints record them (by file name) for the frames they cover, and
+        a checkpoint whose frames' files changed since is not resumed
+        (``"resume"``: CheckpointError naming the first changed file;
+        ``"continue"``: the method starts over). Frames added after the last
+        one done are not affected. None (or a frame missing): not checked.
 
     Raises
     ------
     FileExistsError
         Results exist and ``existing`` is ``"error"``.
     CheckpointError
-        ``"resume"`` with a checkpoint of a different run, or results without one.
+        ``"resume"`` with a checkpoint of a different run, of changed input
+        files or damaged, results without one, or ``metrics.csv`` rows of a
+        method that is not resumed.
     OutputError
         The output folder cannot be written.
     """
@@ -337,6 +418,7 @@ class SequenceRun:
         log: Log = None,
         processors: Callable[[str, SSSParams, MethodOptions], Processor] = make_processor,
         submit: Callable[[Callable[[], None]], Any] | None = None,
+        inputs: Mapping[int, Stamps] | None = None,
     ) -> None:
         if existing not in EXISTING:
             raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
@@ -350,6 +432,10 @@ class SequenceRun:
         self._submit = submit if write else None
         self._writing: Any = None  # the last stepped frame's files (submit's handle)
         self._position = {n: i for i, n in enumerate(self.numbers)}
+        self._inputs = None if inputs is None else {int(n): list(v) for n, v in inputs.items()}
+        # Per resumed method, the (H, W) of its checkpoint's arrays, checked against
+        # the first frame it processes (the compiled kernels index them unchecked).
+        self._shapes: dict[str, tuple[int, int]] = {}
         self._signature = spec.signature()
         order = spec.order
         self._rank = {name: i for i, name in enumerate(order)}
@@ -386,11 +472,15 @@ class SequenceRun:
             if fresh:
                 continue
             if existing == "continue":
-                if has_checkpoint and self._matches(run):
-                    self._resume(run)
+                if has_checkpoint:
+                    try:
+                        found = self._checked(run)
+                    except CheckpointError:
+                        continue  # another run's, or damaged: start over
+                    self._restore(run, found)
                 continue
             if existing == "resume" and has_checkpoint:
-                self._resume(run)
+                self._restore(run, self._checked(run))
             elif existing == "resume" and results:
                 raise CheckpointError(
                     f"{os.fspath(run.folder)}: {len(results)} result(s) but no checkpoint "
@@ -413,6 +503,20 @@ class SequenceRun:
                 f"{os.fspath(metrics)} already exists (from another run); pass --overwrite "
                 "to replace it or choose another --out"
             )
+        if existing == "resume" and metrics.exists():
+            # metrics.csv is rewritten from the rows of this run's methods: the rows of
+            # a method that is not resumed (another run's, or one whose checkpoint is
+            # gone) would be lost.
+            kept = {run.name for run in self.runs.values() if run.resumed}
+            lost = sorted(_metric_methods(metrics) - kept)
+            if lost:
+                noun = "method" if len(lost) == 1 else "methods"
+                raise CheckpointError(
+                    f"{os.fspath(metrics)}: holds the rows of {noun} {', '.join(lost)}, which "
+                    f"this run ({', '.join(self.runs)}) does not resume from a checkpoint; "
+                    "resume with the methods of the run that wrote it, pass --overwrite to "
+                    "start over, or choose another --out"
+                )
         for folder in (self.out, *(run.folder for run in self.runs.values())):
             make_folder(folder)
             remove_stale_temporaries(folder)
@@ -435,45 +539,124 @@ class SequenceRun:
         if not any(run.resumed for run in self.runs.values()) or fresh:
             write_text(metrics, format_metrics([]))
 
-    def _load(self, run: _MethodRun) -> tuple[dict, dict]:
-        return checkpoint.load(run.checkpoint)
+    def _checked(self, run: _MethodRun) -> _Checkpoint:
+        """``run``'s checkpoint, once it is known to be this run's and intact.
 
-    def _matches(self, run: _MethodRun) -> bool:
-        try:
-            state, _ = self._load(run)
-        except CheckpointError:
-            return False
-        done = [int(n) for n in state.get("frames_done", [])]
-        return (
-            state.get("method") == run.name
-            and state.get("signature") == self._signature
-            and self.numbers[: len(done)] == done
-        )
-
-    def _resume(self, run: _MethodRun) -> None:
-        state, arrays = self._load(run)
+        Raises
+        ------
+        CheckpointError
+            Unreadable or damaged (a state field of the wrong type, an array
+            missing or of the wrong shape or dtype), written by another run,
+            covering frames no longer in their place, or a pass file of a
+            frame it covers changed since.
+        """
+        state, arrays = checkpoint.load(run.checkpoint)
         name = os.fspath(run.checkpoint)
-        if state.get("method") != run.name or state.get("signature") != self._signature:
+
+        def damaged(what: str) -> CheckpointError:
+            return CheckpointError(
+                f"{name}: damaged checkpoint ({what}); pass --overwrite to start over"
+            )
+
+        method, signature = state.get("method"), state.get("signature")
+        if not isinstance(method, str) or not isinstance(signature, dict):
+            raise damaged("no method name or run signature")
+        if method != run.name or signature != self._signature:
             what = (
-                "method " + str(state.get("method"))
-                if state.get("method") != run.name
-                else _signature_difference(state.get("signature") or {}, self._signature)
+                f"method {method}"
+                if method != run.name
+                else _signature_difference(signature, self._signature)
             )
             raise CheckpointError(
                 f"{name}: written by a different run ({what}); resume with the same "
                 "passes, methods and parameters, or pass --overwrite to start over"
             )
-        done = [int(n) for n in state.get("frames_done", [])]
+        done = state.get("frames_done", [])
+        if not isinstance(done, list) or not all(_is_int(n) for n in done):
+            raise damaged(f"frames_done is not a list of frame numbers: {done!r:.60}")
         if self.numbers[: len(done)] != done:
             raise CheckpointError(
                 f"{name}: covers frames {format_frame_ranges(done)} but the sequence now holds "
                 f"{format_frame_ranges(self.numbers[: len(done)]) or 'fewer frames'} in their "
                 "place; pass --overwrite to start over"
             )
-        if done and run.processor.method.adaptive and "h_meta" not in arrays:
+        rows = state.get("rows", [])
+        if not isinstance(rows, list):
+            raise damaged(f"rows is not a list of metric rows: {rows!r:.60}")
+        covered = set(done)
+        for row in rows:
+            if not (
+                isinstance(row, dict)
+                and row.get("method") == run.name
+                and _is_int(row.get("frame"))
+                and row["frame"] in covered
+                and all(
+                    isinstance(k, str) and (v is None or isinstance(v, str | int | float))
+                    for k, v in row.items()
+                )
+            ):
+                raise damaged(f"metric row {row!r:.80}")
+        inputs = state.get("inputs")
+        if inputs is None:
+            # Written before the pass files were recorded: they cannot be checked.
+            inputs = [None] * len(done)
+        elif not (
+            isinstance(inputs, list)
+            and len(inputs) == len(done)
+            and all(v is None or _is_stamps(v) for v in inputs)
+        ):
+            raise damaged("inputs does not list the files of each frame done")
+        self._check_inputs(name, done, inputs)
+        try:
+            shape = check_state(run.processor.method, arrays)
+        except ValueError as exc:
+            raise damaged(str(exc)) from None
+        if done and run.processor.method.adaptive and shape is None:
             raise CheckpointError(
                 f"{name}: has no history for frame {done[-1]}; pass --overwrite to start over"
             )
+        last = [k for k in LAST_ARRAYS if k in arrays]
+        if last:
+            if len(last) != len(LAST_ARRAYS):
+                missing = sorted(set(LAST_ARRAYS) - set(last))
+                raise damaged(f"no array {', '.join(missing)}")
+            light = arrays["run_last_light"]
+            if light.shape != () or light.dtype.kind != "f" or not np.isfinite(light):
+                raise damaged(f"run_last_light must be a finite float, got {light!r:.60}")
+            want = shape or np.shape(arrays["run_last_y"])
+            for key in ("run_last_combined", "run_last_y"):
+                value = arrays[key]
+                if len(want) != 2 or value.shape != want or value.dtype != np.float32:
+                    raise damaged(
+                        f"{key} must be a {'x'.join(map(str, want))} float32 image, got shape "
+                        f"{value.shape} dtype {value.dtype}"
+                    )
+            shape = shape or (int(want[0]), int(want[1]))
+        return _Checkpoint(list(done), list(rows), list(inputs), arrays, shape)
+
+    def _check_inputs(self, name: str, done: list[int], inputs: list[list | None]) -> None:
+        """Refuse a checkpoint whose frames were computed from files that changed since."""
+        if self._inputs is None:
+            return
+        for number, old in zip(done, inputs, strict=True):
+            new = self._inputs.get(number)
+            if old is None or new is None:
+                continue
+            for k in range(max(len(old), len(new))):
+                was = old[k] if k < len(old) else None
+                now = new[k] if k < len(new) else None
+                if now is not None and was == [Path(now[0]).name, now[1], now[2]]:
+                    continue
+                path = now[0] if now is not None else was[0]
+                raise CheckpointError(
+                    f"{name}: pass file {os.fspath(path)} changed since frame {number} was "
+                    "processed (size or modification time); resuming would mix results of "
+                    "the old and new passes: pass --overwrite to start over"
+                )
+
+    def _restore(self, run: _MethodRun, found: _Checkpoint) -> None:
+        """Continue ``run`` from its checked checkpoint."""
+        arrays, done = found.arrays, found.done
         run.processor.restore(arrays)
         if "run_last_y" in arrays and done:
             # What light_change and flicker compare the next frame with.
@@ -483,9 +666,20 @@ class SequenceRun:
                 float(arrays["run_last_light"]),
                 np.asarray(arrays["run_last_y"]),
             )
+        if found.shape is not None:
+            self._shapes[run.name] = found.shape
         run.done = done
-        run.rows = list(state.get("rows", []))
+        run.rows = found.rows
+        run.inputs = found.inputs
         run.resumed = True
+
+    def _stamps(self, number: int) -> list | None:
+        """What a checkpoint records of frame ``number``'s files (None: not known)."""
+        if self._inputs is None or number not in self._inputs:
+            return None
+        return [
+            [Path(path).name, int(size), int(mtime)] for path, size, mtime in self._inputs[number]
+        ]
 
     def _save(self, run: _MethodRun) -> Callable[[], None]:
         """Writes ``run``'s checkpoint as it is now (when called, even if later)."""
@@ -493,6 +687,7 @@ class SequenceRun:
             "method": run.name,
             "frames_done": list(run.done),
             "rows": list(run.rows),
+            "inputs": list(run.inputs),
             "signature": self._signature,
         }
         arrays = dict(run.processor.state())
@@ -617,6 +812,16 @@ class SequenceRun:
                 )
         if not todo:
             return step
+        for run in todo:
+            shape = self._shapes.get(run.name)
+            if shape is not None and shape != tuple(frame.shape):
+                raise CheckpointError(
+                    f"{os.fspath(run.checkpoint)}: holds the state of {shape[1]}x{shape[0]} "
+                    f"frames but frame {number} is {frame.shape[1]}x{frame.shape[0]}; pass "
+                    "--overwrite to start over"
+                )
+        for run in todo:
+            self._shapes.pop(run.name, None)
         if ground_truth is not None and np.shape(ground_truth) != (*frame.shape, 3):
             raise PassError(
                 f"frame {number}: the ground truth is {np.shape(ground_truth)[1]}x"
@@ -652,6 +857,7 @@ class SequenceRun:
         for run in todo:
             if run.name == "reference" and ref is None:
                 run.done.append(number)  # not due on this frame: no result, no row
+                run.inputs.append(self._stamps(number))
                 if self.write:
                     emit(self._save(run))
                 continue
@@ -706,6 +912,7 @@ class SequenceRun:
                 )
             run.rows.append(row)
             run.done.append(number)
+            run.inputs.append(self._stamps(number))
             if self.write:
                 emit(self._save(run))
             step.results[run.name] = result
@@ -943,6 +1150,12 @@ def run_folder(
     source = f"{os.fspath(passes.resolve())} ({frames[0][1].name}: {head.st_size} bytes, "
     source += f"mtime {head.st_mtime_ns})"
     spec = dataclasses.replace(spec, source=source)
+    # Every file a frame is read from: a resume refuses a checkpoint whose frames'
+    # files changed since (frames rendered again), but not frames added at the end.
+    try:
+        inputs = {n: file_stamps((path, path.with_suffix(".json"))) for n, path in frames}
+    except OSError as exc:
+        raise PassError(f"{exc.filename}: cannot be read ({exc.strerror})") from None
     run = SequenceRun(
         out,
         spec,
@@ -951,6 +1164,7 @@ def run_folder(
         log=log,
         processors=processors,
         submit=submit,
+        inputs=inputs,
     )
     first: list = []
 

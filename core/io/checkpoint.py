@@ -2,8 +2,11 @@
 
 A checkpoint is an uncompressed ``.npz`` (zlib on float buffers is slow and
 gains little) holding a JSON ``state`` (method, frames done, metric rows, the
-run's signature) and the processor's arrays (the per-pixel history). It is
-written atomically after every frame (:mod:`.atomic`).
+run's signature, the pass files of the frames done) and the processor's arrays
+(the per-pixel history). It is written atomically after every frame
+(:mod:`.atomic`). :func:`load` checks the archive only; what the state and
+arrays must hold is checked by the run that resumes from them
+(``core.run.SequenceRun``).
 """
 
 from __future__ import annotations

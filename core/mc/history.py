@@ -420,9 +420,90 @@ class History:
         }
         return {prefix + k: v for k, v in arrays.items()}
 
+    @staticmethod
+    def check_arrays(arrays, prefix: str = "", fields: tuple[str, ...] = ()) -> tuple[int, int]:
+        """Check that ``arrays`` hold a history as :meth:`to_arrays` writes it.
+
+        :meth:`from_arrays` and the compiled kernels index the buffers with the
+        frame's pixel indices unchecked: a buffer of another shape would read and
+        write out of bounds. A checkpoint is therefore checked with this before it
+        is restored.
+
+        Parameters
+        ----------
+        arrays : mapping name -> array (or an open ``.npz``)
+        prefix : str, prefix of the history's names (``"h_"`` in a processor state)
+        fields : buffer names that must be present (``buf_<name>``), e.g.
+            :data:`H_FIELDS` and :data:`J_FIELDS`; other buffers are allowed
+
+        Returns
+        -------
+        (H, W), the image shape every pixel array shares.
+
+        Raises
+        ------
+        ValueError
+            An array is missing or has the wrong shape, dtype or value; the
+            message names it.
+        """
+        keys = set(arrays.keys()) if hasattr(arrays, "keys") else set(arrays.files)
+
+        def get(key: str) -> np.ndarray:
+            if prefix + key not in keys:
+                raise ValueError(f"no array {prefix + key}")
+            return np.asarray(arrays[prefix + key])
+
+        def scalar(key: str, kinds: str) -> np.ndarray:
+            value = get(key)
+            if value.shape != () or value.dtype.kind not in kinds:
+                raise ValueError(
+                    f"{prefix + key} must be a scalar of kind {kinds!r}, "
+                    f"got shape {value.shape} dtype {value.dtype}"
+                )
+            return value
+
+        meta = get("meta")
+        if meta.ndim != 1 or meta.shape[0] not in (1, 3) or meta.dtype.kind not in "iu":
+            raise ValueError(
+                f"{prefix}meta must be 1 or 3 integers, got shape {meta.shape} dtype {meta.dtype}"
+            )
+        precision = str(scalar("precision", "U"))
+        if precision not in _FINITE_MAX:
+            raise ValueError(f"{prefix}precision must be float32 or float16, got {precision!r}")
+        for key in ("cov_scale", "var_scale"):
+            if key == "var_scale" and prefix + key not in keys:
+                continue  # checkpoints written before var_scale existed
+            value = float(scalar(key, "f"))
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{prefix + key} must be finite and > 0, got {value!r}")
+        valid = get("valid")
+        if valid.ndim != 2 or 0 in valid.shape:
+            raise ValueError(f"{prefix}valid must be an (H, W) image, got shape {valid.shape}")
+        shape = (int(valid.shape[0]), int(valid.shape[1]))
+        want = {
+            "valid": np.dtype(bool),
+            "cv_valid": np.dtype(bool),
+            "material": np.dtype(np.int32),
+            "depth": np.dtype(np.float32),
+        }
+        want.update(dict.fromkeys((f"buf_{name}" for name in fields), _storage(precision)))
+        start = prefix + "buf_"
+        for key in sorted(keys):
+            if key.startswith(start):
+                want.setdefault(key[len(prefix) :], _storage(precision))
+        for key, dtype in want.items():
+            value = get(key)
+            if value.shape != shape or value.dtype != dtype:
+                raise ValueError(
+                    f"{prefix + key} must be {shape[0]}x{shape[1]} {dtype}, got shape "
+                    f"{value.shape} dtype {value.dtype}"
+                )
+        return shape
+
     @classmethod
     def from_arrays(cls, arrays, prefix: str = "") -> History:
-        """Inverse of :meth:`to_arrays` (``arrays``: a mapping or an open ``.npz``)."""
+        """Inverse of :meth:`to_arrays` (``arrays``: a mapping or an open ``.npz``,
+        checked with :meth:`check_arrays` where it comes from a file)."""
 
         def get(key: str) -> np.ndarray:
             return np.asarray(arrays[prefix + key]).copy()

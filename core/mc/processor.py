@@ -24,7 +24,7 @@ from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
 from . import adaptive, control_variates, temporal
 from .estimator import estimate_distant
-from .history import H_FIELDS, J_FIELDS, History
+from .history import H_FIELDS, J_FIELDS, T_FIELDS, History
 
 #: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
 #: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
@@ -49,6 +49,39 @@ def _bounded(values: np.ndarray) -> np.ndarray:
     if nan.any():
         out[nan] = 0.0
     return out
+
+
+def history_fields(method: Method) -> tuple[str, ...]:
+    """The history buffers ``method`` keeps (those :meth:`History.empty` makes for it)."""
+    return (
+        *H_FIELDS,
+        *(J_FIELDS if method.cv == "online" else ()),
+        *(T_FIELDS if method.temporal else ()),
+    )
+
+
+def check_state(method: Method, state: Mapping[str, np.ndarray]) -> tuple[int, int] | None:
+    """Check a :meth:`MonteCarloProcessor.state` of ``method`` read from a file.
+
+    Parameters
+    ----------
+    method : Method of the registry
+    state : mapping name -> array
+
+    Returns
+    -------
+    (H, W) of the history, or None when ``state`` holds none.
+
+    Raises
+    ------
+    ValueError
+        An adaptive method's history lacks a buffer, or an array of it has the
+        wrong shape, dtype or value (:meth:`History.check_arrays`).
+    """
+    if "h_meta" not in state:
+        return None
+    fields = history_fields(method) if method.adaptive else ()
+    return History.check_arrays(state, "h_", fields)
 
 
 class MonteCarloProcessor:
@@ -76,7 +109,14 @@ class MonteCarloProcessor:
         return {} if self.history is None else self.history.to_arrays("h_")
 
     def restore(self, state: Mapping[str, np.ndarray]) -> None:
-        """Continue from :meth:`state`."""
+        """Continue from :meth:`state`.
+
+        Raises
+        ------
+        ValueError
+            ``state`` holds a damaged history (:func:`check_state`).
+        """
+        check_state(self.method, state)
         self.history = History.from_arrays(state, "h_") if "h_meta" in state else None
 
     # -- the frame step -----------------------------------------------------------------

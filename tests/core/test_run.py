@@ -1,7 +1,10 @@
-"""core.run: warm-up frames, the open-ended FrameStream of Blender's own render, and
-writing a frame's files in the background."""
+"""core.run: warm-up frames, the open-ended FrameStream of Blender's own render,
+writing a frame's files in the background, and what a resume refuses (metric rows it
+would drop, changed pass files, damaged checkpoints)."""
 
 import csv
+import os
+import shutil
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -9,12 +12,12 @@ import pytest
 
 from cvsss.core import run as run_mod
 from cvsss.core.io import checkpoint
-from cvsss.core.io.errors import OutputError, PassError
+from cvsss.core.io.errors import CheckpointError, OutputError, PassError
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.run import FrameStream, RunSpec, SequenceRun, run_folder
-from cvsss.core.synthetic import sequence
+from cvsss.core.synthetic import scene_frame, sequence
 
 PARAMS = SSSParams(target_variance=1e-6)
 SPEC = RunSpec(("as_ocv",), PARAMS)
@@ -267,3 +270,176 @@ def test_an_interrupted_wait_still_finishes_the_files(tmp_path):
     run.wait()  # as run_folder does on the way out
     assert (out / "as_ocv" / "0001.exr").is_file()
     assert checkpoint.load(out / "as_ocv" / ".checkpoint.npz")[0]["frames_done"] == [1]
+
+
+# -- what a resume refuses ---------------------------------------------------------------------
+def _checkpoint_of(out, method="as_ccv"):
+    return out / method / run_mod.CHECKPOINT_NAME
+
+
+def _edit_checkpoint(path, edit):
+    """Rewrite the checkpoint at ``path`` after ``edit(state, arrays)`` (a valid archive)."""
+    state, arrays = checkpoint.load(path)
+    state.pop("format")
+    edit(state, arrays)
+    checkpoint.save(path, state, arrays)
+
+
+def _files(folder):
+    return {p: p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_resume_refuses_to_drop_the_metric_rows_of_a_method_it_does_not_resume(tmp_path):
+    passes = _passes(tmp_path / "passes", _frames(1, 3))
+    out = tmp_path / "out"
+    run_folder(passes, out, RunSpec(("as_ccv",), PARAMS))
+    before = _files(out)
+    # Another method, which has no checkpoint: it would start over and rewrite
+    # metrics.csv with its own rows only.
+    with pytest.raises(CheckpointError, match=r"metrics\.csv: holds the rows of method as_ccv"):
+        run_folder(passes, out, RunSpec(("as",), PARAMS), existing="resume")
+    assert _files(out) == before
+    assert not (out / "as").exists()
+
+    # The same methods, one of which lost its folder (and checkpoint): its rows are
+    # refused too, the others' resume as before.
+    both = RunSpec(("as_ccv", "as"), PARAMS)
+    out = tmp_path / "both"
+    run_folder(passes, out, both)
+    run_folder(passes, out, both, existing="resume")  # nothing to do: accepted
+    shutil.rmtree(out / "as")
+    before = _files(out)
+    with pytest.raises(CheckpointError, match="rows of method as, which this run"):
+        run_folder(passes, out, both, existing="resume")
+    assert _files(out) == before
+
+
+@pytest.fixture(scope="module")
+def _early(tmp_path_factory):
+    """Pass files of frames 1-3 and, apart, of frames 4-6."""
+    root = tmp_path_factory.mktemp("early")
+    return _passes(root / "passes", _frames(1, 3)), _passes(root / "later", _frames(4, 3))
+
+
+def _copy_early(early, tmp_path):
+    """An as_ccv run over frames 1-3, then frames 4-6 added to its passes."""
+    passes, later = early
+    # copy2 keeps the modification times (the copies are the same pass files).
+    shutil.copytree(passes, tmp_path / "passes", copy_function=shutil.copy2)
+    run_folder(tmp_path / "passes", tmp_path / "out", RunSpec(("as_ccv",), PARAMS))
+    for path in later.iterdir():
+        shutil.copy2(path, tmp_path / "passes" / path.name)
+    return tmp_path / "passes", tmp_path / "out"
+
+
+def test_resume_refuses_pass_files_changed_since_their_frame_was_done(_early, tmp_path):
+    spec = RunSpec(("as_ccv",), PARAMS)
+    whole = tmp_path / "whole"
+    run_folder(_copy_early(_early, tmp_path / "w")[0], whole, spec)
+
+    # Frames added after the last one done are taken: the whole run's results.
+    passes, out = _copy_early(_early, tmp_path / "added")
+    run_folder(passes, out, spec, existing="resume")
+    _same_files(whole, out)
+
+    # Frame 2 rendered again (another scene): its result and the history carried
+    # from it are stale, so the resume is refused, naming the file; nothing changes.
+    passes, out = _copy_early(_early, tmp_path / "changed")
+    write_passes(passes / "0002.exr", scene_frame("regular", 2, 32, 24), overwrite=True)
+    before = _files(out)
+    with pytest.raises(CheckpointError, match=r"pass file \S*0002\.exr changed .*--overwrite"):
+        run_folder(passes, out, spec, existing="resume")
+    assert _files(out) == before
+    # "continue" starts that method over instead: frame 2 from the new passes.
+    run_folder(passes, out, spec, existing="continue")
+    fresh = tmp_path / "fresh"
+    run_folder(passes, fresh, spec)
+    _same_files(fresh, out)
+
+    # A sidecar counts too: stat only, so a touch is a change.
+    passes, out = _copy_early(_early, tmp_path / "touched")
+    sidecar = passes / "0003.json"
+    st = sidecar.stat()
+    os.utime(sidecar, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    with pytest.raises(CheckpointError, match=r"pass file \S*0003\.json changed"):
+        run_folder(passes, out, spec, existing="resume")
+
+
+def test_a_checkpoint_without_the_pass_files_still_resumes(_early, tmp_path):
+    # Checkpoints written before the pass files were recorded cannot be checked
+    # against them, but they still resume.
+    spec = RunSpec(("as_ccv",), PARAMS)
+    whole = tmp_path / "whole"
+    run_folder(_copy_early(_early, tmp_path / "w")[0], whole, spec)
+    passes, out = _copy_early(_early, tmp_path / "old")
+    _edit_checkpoint(_checkpoint_of(out), lambda state, arrays: state.pop("inputs"))
+    run_folder(passes, out, spec, existing="resume")
+    _same_files(whole, out)
+
+
+def _set(mapping, key, value):
+    mapping[key] = value
+
+
+DAMAGE = {
+    # The numba kernels index the history with the frame's pixel indices: a buffer
+    # of another shape crashed the process (segfault) before it was checked.
+    "history buffer of another shape": (
+        lambda s, a: _set(a, "h_buf_mu", np.zeros((5, 5), np.float32)),
+        "h_buf_mu must be 24x32 float32",
+    ),
+    "history buffer missing": (lambda s, a: a.pop("h_buf_mu"), "no array h_buf_mu"),
+    "history depth of another dtype": (
+        lambda s, a: _set(a, "h_depth", a["h_depth"].astype(np.float64)),
+        "h_depth must be 24x32 float32",
+    ),
+    "last luminance of another shape": (
+        lambda s, a: _set(a, "run_last_y", np.zeros((3, 3), np.float32)),
+        "run_last_y must be a 24x32 float32 image",
+    ),
+    "frames_done not numbers": (
+        lambda s, a: _set(s, "frames_done", [1, "x", 3]),
+        "frames_done is not a list of frame numbers",
+    ),
+    "frames_done null": (lambda s, a: _set(s, "frames_done", None), "frames_done is not a list"),
+    "rows null": (lambda s, a: _set(s, "rows", None), "rows is not a list"),
+    "row of another method": (
+        lambda s, a: s["rows"][0].update(method="reference"),
+        "metric row",
+    ),
+    "signature not a mapping": (lambda s, a: _set(s, "signature", [1]), "run signature"),
+}
+
+
+@pytest.mark.parametrize("damage", DAMAGE)
+def test_a_damaged_checkpoint_is_refused_with_one_clear_error(_early, tmp_path, damage):
+    edit, what = DAMAGE[damage]
+    passes, out = _copy_early(_early, tmp_path)
+    path = _checkpoint_of(out)
+    _edit_checkpoint(path, edit)
+    before = _files(out)
+    spec = RunSpec(("as_ccv",), PARAMS)
+    with pytest.raises(CheckpointError) as caught:
+        run_folder(passes, out, spec, existing="resume")
+    message = str(caught.value)
+    assert message.startswith(f"{path}: damaged checkpoint (")
+    assert what in message and message.endswith("pass --overwrite to start over")
+    assert _files(out) == before
+    # "continue" starts over from a damaged checkpoint, as from an unreadable one.
+    run_folder(passes, out, spec, existing="continue")
+    assert checkpoint.load(path)[0]["frames_done"] == list(range(1, 7))
+
+
+def test_a_checkpoint_of_other_sized_frames_is_refused_before_it_is_used(_early, tmp_path):
+    # Every array cropped alike: consistent, but not the frames' size.
+    passes, out = _copy_early(_early, tmp_path)
+    path = _checkpoint_of(out)
+
+    def crop(state, arrays):
+        for key, value in arrays.items():
+            if value.ndim == 2:
+                arrays[key] = np.ascontiguousarray(value[:12, :16])
+
+    _edit_checkpoint(path, crop)
+    with pytest.raises(CheckpointError, match=r"16x12 frames but frame 4 is 32x24.*--overwrite"):
+        run_folder(passes, out, RunSpec(("as_ccv",), PARAMS), existing="resume")
