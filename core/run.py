@@ -455,14 +455,6 @@ class SequenceRun:
         self._todo_frames = sum(1 for n in self.numbers if self.pending(n))
 
     # -- opening: existing results, resume -----------------------------------------------
-    def _planned(self, run: _MethodRun) -> set[str]:
-        every = self.spec.reference_every
-        return {
-            f"{n:04d}.exr"
-            for i, n in enumerate(self.numbers)
-            if run.name != "reference" or i % every == 0
-        }
-
     def _open(self, existing: str) -> None:
         metrics = self.out / "metrics.csv"
         fresh = existing == "overwrite"
@@ -527,11 +519,11 @@ class SequenceRun:
                     where = f"after frame {run.done[-1]}" if run.done else "at the first frame"
                     self.log(f"{run.name}: resuming {where} ({len(run.done)} done, {left} to go)")
                 continue
-            # Results this run will not write (frames no longer in the sequence, the
-            # reference's skipped frames) must not pass for this run's.
-            planned = self._planned(run)
+            # A method that starts over (--overwrite, or "continue" with another run's
+            # checkpoint) drops every earlier result first: a run that then stops at
+            # frame k must not leave the old run's frames after k beside its own.
             for old in run.folder.glob("[0-9]*.exr"):
-                if old.stem.isdigit() and old.name not in planned:
+                if old.stem.isdigit():
                     old.unlink()
             # A fresh checkpoint marks every result file written after it as this
             # run's (for resume) and fails early if the folder cannot be written.

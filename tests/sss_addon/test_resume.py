@@ -186,6 +186,21 @@ def test_crash_mid_write_leaves_no_partial_exr_float16(passes, tmp_path, monkeyp
     assert_same_run(full, out)
 
 
+def test_overwrite_that_stops_midway_leaves_no_frame_of_the_old_run(passes, full, tmp_path, capsys):
+    """``--overwrite`` starts over: when the new run then stops at a damaged frame, the old
+    run's later frames are gone, not left beside the new ones as if they were its."""
+    out = tmp_path / "out"
+    shutil.copytree(full, out)
+    damaged = tmp_path / "passes"
+    shutil.copytree(passes, damaged)
+    (damaged / "0005.exr").write_bytes((damaged / "0005.exr").read_bytes()[:100])
+    assert cli.main(post_argv(damaged, out, "--overwrite")) == 2
+    assert "0005.exr" in capsys.readouterr().err
+    for method in ("as_ocv", "as_ccv", "reference"):
+        left = sorted(p.name for p in (out / method).glob("*.exr"))
+        assert left == ["0001.exr", "0002.exr", "0003.exr", "0004.exr"], (method, left)
+
+
 def test_interrupt_exits_130_and_points_to_resume(passes, tmp_path, monkeypatch, capsys):
     def interrupt(*_args, **_kwargs):
         raise KeyboardInterrupt
