@@ -106,6 +106,12 @@ class History:
     depth: np.ndarray | None = None
     var_scale: float = 1.0
 
+    @staticmethod
+    def fields(temporal: bool, cv: bool) -> tuple[str, ...]:
+        """The buffers a history holds: :data:`H_FIELDS`, with ``cv`` the online control
+        variate's :data:`J_FIELDS`, with ``temporal`` :data:`T_FIELDS`."""
+        return (*H_FIELDS, *(J_FIELDS if cv else ()), *(T_FIELDS if temporal else ()))
+
     @classmethod
     def empty(
         cls,
@@ -138,8 +144,7 @@ class History:
         """
         dt = _storage(precision)
         half = precision == "float16" and scaled
-        names = (*H_FIELDS, *(J_FIELDS if cv else ()), *(T_FIELDS if temporal else ()))
-        buffers = {name: np.zeros(shape, dtype=dt) for name in names}
+        buffers = {name: np.zeros(shape, dtype=dt) for name in cls.fields(temporal, cv)}
         return cls(
             shape=tuple(shape),
             precision=precision,

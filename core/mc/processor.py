@@ -24,7 +24,7 @@ from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
 from . import adaptive, control_variates, temporal
 from .estimator import estimate_distant
-from .history import H_FIELDS, J_FIELDS, T_FIELDS, History
+from .history import H_FIELDS, J_FIELDS, History
 
 #: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
 #: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
@@ -53,11 +53,7 @@ def _bounded(values: np.ndarray) -> np.ndarray:
 
 def history_fields(method: Method) -> tuple[str, ...]:
     """The history buffers ``method`` keeps (those :meth:`History.empty` makes for it)."""
-    return (
-        *H_FIELDS,
-        *(J_FIELDS if method.cv == "online" else ()),
-        *(T_FIELDS if method.temporal else ()),
-    )
+    return History.fields(temporal=bool(method.temporal), cv=method.cv == "online")
 
 
 def check_state(method: Method, state: Mapping[str, np.ndarray]) -> tuple[int, int] | None:
@@ -109,14 +105,8 @@ class MonteCarloProcessor:
         return {} if self.history is None else self.history.to_arrays("h_")
 
     def restore(self, state: Mapping[str, np.ndarray]) -> None:
-        """Continue from :meth:`state`.
-
-        Raises
-        ------
-        ValueError
-            ``state`` holds a damaged history (:func:`check_state`).
-        """
-        check_state(self.method, state)
+        """Continue from :meth:`state` (a state read from a file is checked first, with
+        :func:`check_state`: ``core.run.SequenceRun`` does so for checkpoints)."""
         self.history = History.from_arrays(state, "h_") if "h_meta" in state else None
 
     # -- the frame step -----------------------------------------------------------------
