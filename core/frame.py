@@ -22,8 +22,9 @@ BACKGROUND_DEPTH = 1e9
 #: Motion vectors are clipped to ±this many pixels (far beyond any image).
 MAX_MOTION = 1e7
 
-#: Largest material slot: Blender's Pass Index (the Material Index pass) is at most 32767.
-MAX_SLOT = 2**15 - 1
+#: Blender's Pass Index is a short: the largest material slot (the Material Index
+#: pass) and object index it stores.
+MAX_PASS_INDEX = 2**15 - 1
 
 #: Object indices are clipped to [0, this] (the compiled kernel keeps slot and object
 #: in one float32, exact below 2**24).
@@ -62,8 +63,10 @@ class MaterialSpec:
 
     def __post_init__(self) -> None:
         slot = self.slot
-        if isinstance(slot, bool) or not isinstance(slot, int) or not 1 <= slot <= MAX_SLOT:
-            raise ValueError(f"material slot must be an integer in [1, {MAX_SLOT}], got {slot!r}")
+        if isinstance(slot, bool) or not isinstance(slot, int) or not 1 <= slot <= MAX_PASS_INDEX:
+            raise ValueError(
+                f"material slot must be an integer in [1, {MAX_PASS_INDEX}], got {slot!r}"
+            )
         d = tuple(float(v) for v in self.d)
         if len(d) != 3 or not all(np.isfinite(d)) or min(d) < 0:
             raise ValueError(

@@ -38,7 +38,7 @@ import numpy as np
 import OpenEXR
 
 from ...core.camera import Camera
-from ...core.frame import MaterialSpec
+from ...core.frame import MAX_PASS_INDEX, MaterialSpec
 from ...core.io.atomic import commit, temp_path
 from ...core.io.errors import OutputError
 from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN, use_threads
@@ -201,9 +201,6 @@ WEIGHT_AOV = "cvsss_weight"
 #: Version of the pass set this module renders (2: with the Object Index pass); the
 #: demo renders its passes again when it changes.
 PASS_FORMAT = 2
-
-#: Largest object Pass Index Blender stores (a short).
-MAX_OBJECT_INDEX = 32767
 
 NEEDED_PASSES = (
     "use_pass_combined",
@@ -491,7 +488,7 @@ def number_objects(scene, materials) -> None:
 
     in_scene = [o for o in scene.objects if o.is_editable]
     order = sorted(in_scene, key=lambda o: not carries(o))  # stable: carriers first
-    numbers = {o.name: i for i, o in enumerate(order, 1) if i <= MAX_OBJECT_INDEX}
+    numbers = {o.name: i for i, o in enumerate(order, 1) if i <= MAX_PASS_INDEX}
     for obj in in_scene:
         index = numbers.get(obj.name, 0)
         if obj.pass_index != index:
