@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: venv test test-core test-bpy demo cv1d fig2 bench lint format clean
+.PHONY: venv test test-fast test-numpy test-core test-bpy demo cv1d fig2 bench lint format clean
 
 venv: $(STAMP)
 
@@ -21,8 +21,19 @@ $(STAMP): requirements.txt requirements-farm.txt pyproject.toml
 	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 
+# Every test (renders through bpy included), then the core again as where numba has no
+# wheel (Windows on ARM: NumPy only).
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+	$(MAKE) --no-print-directory test-numpy
+
+# The inner loop: no renders, no slow statistical tests (a few minutes on 2 cores).
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not bpy and not slow" tests/core tests/sss_addon
+
+# The core with numba and llvmlite unimportable: everything runs on the NumPy backend.
+test-numpy: $(STAMP)
+	$(BIN)/python -m pytest -q --numpy-only -m "not slow" tests/core
 
 test-core: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not bpy" tests/core

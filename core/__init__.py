@@ -7,7 +7,8 @@ References: Xie & Olano 2021 (P), Xie's defense slides (D), Jimenez et al.
 
 from .camera import Camera
 from .frame import Frame, MaterialSpec
-from .methods import METHODS, Method, MethodOptions, get_method, make_processor
+from .method import Method, MethodOptions
+from .methods import METHODS, get_method, make_processor
 from .params import ParameterError, SeparableParams, SSSParams
 from .result import FrameResult
 

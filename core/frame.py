@@ -4,6 +4,14 @@ Image arrays follow the EXR convention: row 0 is the *top* of the image,
 column 0 the left. (Blender's ``Image.pixels`` start at the bottom row; the
 add-on flips when it creates image datablocks.) Colours are linear,
 scene-referred Rec. 709; depth is planar, in scene units.
+
+Material slots
+--------------
+The Material Index pass may hold any value up to 2³¹−1. Profiles, kernels
+and the "same material" tests work on *compact* slots: the sorted subsurface
+materials of the frame numbered 1..K, 0 for everything else
+(:func:`compact_slots`), so memory grows with the number of distinct
+materials, not with the largest index.
 """
 
 from __future__ import annotations
@@ -14,7 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import Camera
-from .geometry import compact_materials
 
 #: Depths at or beyond this (Blender writes 1e10 for the background) are "no surface".
 BACKGROUND_DEPTH = 1e9
@@ -29,6 +36,52 @@ MAX_PASS_INDEX = 2**15 - 1
 #: Object indices are clipped to [0, this] (the compiled kernel keeps slot and object
 #: in one float32, exact below 2**24).
 MAX_OBJECTS = 2**15
+
+
+# -- material slots ----------------------------------------------------------------
+def slot_keys(materials) -> np.ndarray:
+    """(K,) int64 Material Index values of the subsurface materials, sorted."""
+    return np.array(sorted(int(s) for s in materials), dtype=np.int64)
+
+
+#: compact_slots looks keys below this up in a table (else a binary search).
+_TABLE_KEYS = 1 << 16
+
+
+def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Material Index values → compact slots: ``keys[i]`` → i + 1, anything else → 0.
+
+    Parameters
+    ----------
+    material : (...) int array, Material Index pass values
+    keys : (K,) int64, sorted Material Index values of the subsurface materials
+
+    Returns
+    -------
+    (...) int32 compact slots in [0, K].
+
+    >>> compact_slots(np.array([0, 7, 2**31 - 1, 5]), np.array([7, 2**31 - 1])).tolist()
+    [0, 1, 2, 0]
+    """
+    material = np.asarray(material)
+    if keys.size == 0:
+        return np.zeros(material.shape, np.int32)
+    integer = material.dtype.kind in "iu" and np.can_cast(material.dtype, np.intp)
+    if integer and keys[0] >= 1 and keys[-1] < _TABLE_KEYS:
+        # A lookup table over 0…max key (0 elsewhere); values outside it clip to an
+        # end that reads 0 (keys start at 1). One pass: 0.8 ms against 20 ms for the
+        # binary search on 921 600 values (one-off timeit).
+        table = np.zeros(int(keys[-1]) + 2, np.int32)
+        table[keys] = np.arange(1, keys.size + 1, dtype=np.int32)
+        return np.take(table, material, mode="clip")
+    pos = np.searchsorted(keys, material)
+    hit = keys[np.minimum(pos, keys.size - 1)] == material
+    return np.where(hit, pos + 1, 0).astype(np.int32)
+
+
+def compact_materials(materials) -> dict:
+    """The frame's MaterialSpecs keyed by compact slot 1..K (their own ``slot`` unchanged)."""
+    return {i: materials[int(k)] for i, k in enumerate(slot_keys(materials), 1)}
 
 
 @dataclass(frozen=True)
@@ -357,7 +410,7 @@ class Frame:
     def d_table(self) -> np.ndarray:
         """(K + 1, 3) Burley ``d`` per compact slot (scene units; row 0: no subsurface).
 
-        Rows follow :func:`core.geometry.compact_slots`: the K subsurface
+        Rows follow :func:`compact_slots`: the K subsurface
         materials sorted by Material Index, so the table's size does not
         depend on the index values.
         """

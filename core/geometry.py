@@ -1,6 +1,6 @@
 """The SSS pixels of a frame and what every estimator needs to know about them.
 
-:func:`prepare` finds the pixels that scatter (a participating material and a
+:func:`geometry_of` finds the pixels that scatter (a participating material and a
 surface) and computes, once per frame, their pixel footprint, the direct
 radius ``r0 = sqrt(w² + h²)/2`` (P Sec. 5), the distant energy ratio γ and the
 sampling bounds of the profile. The Monte Carlo estimator (core.mc) and the
@@ -21,11 +21,9 @@ fronto-parallel area (grazing angles).
 
 Material slots
 --------------
-The Material Index pass may hold any value up to 2³¹−1. Profiles, kernels
-and the "same material" tests work on *compact* slots: the sorted subsurface
-materials of the frame numbered 1..K, 0 for everything else
-(:func:`compact_slots`), so memory grows with the number of distinct
-materials, not with the largest index.
+Profiles, kernels and the "same material" tests work on the frame's *compact*
+slots (:func:`core.frame.compact_slots`): its subsurface materials numbered
+1..K, 0 for everything else.
 """
 
 from __future__ import annotations
@@ -37,12 +35,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .mc.backend import compiled as _compiled
+from .backends.twins import compiled_module, compiled_side, numpy_side
+from .frame import Frame, compact_slots, slot_keys
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from .frame import Frame
     from .profiles.base import Profile, Region
 
 
@@ -91,34 +89,17 @@ def positions(camera, depth: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np
         return np.stack([(xx - cx) * wu * scale, (yy - cy) * hu * scale, z], axis=-1)
 
 
+@numpy_side("surface")
 def surface(frame: Frame, backend: str = "numpy") -> Surface:
     """The :class:`Surface` of ``frame`` (see the module doc).
 
-    ``backend`` (one of core.params.BACKENDS): where it resolves to numba, the
-    compiled pass :func:`core.mc.estimator_numba.surface_arrays` computes the
-    same arrays bit for bit in one pass over the pixels (the NumPy version
-    below makes ~40 passes over (H, W, 3) float64 arrays: half of a frame's
-    time once the sampling step is compiled).
+    ``backend`` (one of core.params.BACKENDS): where it resolves to numba, one
+    compiled pass computes the same arrays bit for bit (:func:`_surface_compiled`;
+    this NumPy version makes ~40 passes over (H, W, 3) float64 arrays).
     """
     cam = frame.camera
     wu, hu = cam.unit_footprint()
     ortho = cam.type == "ORTHO"
-    if _compiled(backend):
-        from .mc.estimator_numba import surface_arrays
-
-        oy, ox = frame.origin
-        area, normal = surface_arrays(
-            np.ascontiguousarray(frame.depth, dtype=np.float32),
-            int(ox),
-            int(oy),
-            float(wu),
-            float(hu),
-            float(cam.principal_point[0]),
-            float(cam.principal_point[1]),
-            bool(ortho),
-            MAX_TILT,
-        )
-        return Surface(ortho, (wu, hu), cam.principal_point, area, normal)
     z = frame.depth.astype(np.float64)
     h, w = z.shape
     p = positions(cam, frame.depth, frame.origin)
@@ -179,49 +160,24 @@ def surface(frame: Frame, backend: str = "numpy") -> Surface:
     )
 
 
-def slot_keys(materials) -> np.ndarray:
-    """(K,) int64 Material Index values of the subsurface materials, sorted."""
-    return np.array(sorted(int(s) for s in materials), dtype=np.int64)
-
-
-#: compact_slots looks keys below this up in a table (else a binary search).
-_TABLE_KEYS = 1 << 16
-
-
-def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Material Index values → compact slots: ``keys[i]`` → i + 1, anything else → 0.
-
-    Parameters
-    ----------
-    material : (...) int array, Material Index pass values
-    keys : (K,) int64, sorted Material Index values of the subsurface materials
-
-    Returns
-    -------
-    (...) int32 compact slots in [0, K].
-
-    >>> compact_slots(np.array([0, 7, 2**31 - 1, 5]), np.array([7, 2**31 - 1])).tolist()
-    [0, 1, 2, 0]
-    """
-    material = np.asarray(material)
-    if keys.size == 0:
-        return np.zeros(material.shape, np.int32)
-    integer = material.dtype.kind in "iu" and np.can_cast(material.dtype, np.intp)
-    if integer and keys[0] >= 1 and keys[-1] < _TABLE_KEYS:
-        # A lookup table over 0…max key (0 elsewhere); values outside it clip to an
-        # end that reads 0 (keys start at 1). One pass: 0.8 ms against 20 ms for the
-        # binary search on 921 600 values (one-off timeit).
-        table = np.zeros(int(keys[-1]) + 2, np.int32)
-        table[keys] = np.arange(1, keys.size + 1, dtype=np.int32)
-        return np.take(table, material, mode="clip")
-    pos = np.searchsorted(keys, material)
-    hit = keys[np.minimum(pos, keys.size - 1)] == material
-    return np.where(hit, pos + 1, 0).astype(np.int32)
-
-
-def compact_materials(materials) -> dict:
-    """The frame's MaterialSpecs keyed by compact slot 1..K (their own ``slot`` unchanged)."""
-    return {i: materials[int(k)] for i, k in enumerate(slot_keys(materials), 1)}
+@compiled_side("surface")
+def _surface_compiled(frame: Frame, backend: str = "numpy") -> Surface:
+    """:func:`surface` in one compiled pass over the pixels: the same arrays."""
+    cam = frame.camera
+    wu, hu = cam.unit_footprint()
+    oy, ox = frame.origin
+    area, normal = compiled_module("surface").surface_arrays(
+        np.ascontiguousarray(frame.depth, dtype=np.float32),
+        int(ox),
+        int(oy),
+        float(wu),
+        float(hu),
+        float(cam.principal_point[0]),
+        float(cam.principal_point[1]),
+        bool(cam.type == "ORTHO"),
+        MAX_TILT,
+    )
+    return Surface(cam.type == "ORTHO", (wu, hu), cam.principal_point, area, normal)
 
 
 @dataclass
@@ -373,26 +329,46 @@ class Geometry:
         """Scatter (P, ...) values into an (H, W, ...) image, ``fill`` elsewhere.
 
         Float values into a float32 image are clipped to ±float32 max (NaN kept);
-        where ``backend`` resolves to numba that runs as one compiled pass
-        (:func:`core.mc.estimator_numba.float_image`, the same values).
+        where ``backend`` resolves to numba that runs as one compiled pass (the
+        ``float_image`` twin: the same values).
         """
-        values = np.asarray(values)
-        if (
-            np.dtype(dtype) == np.float32
-            and values.dtype.kind == "f"
-            and values.ndim in (1, 2)
-            and _compiled(backend)
-        ):
-            from .mc.estimator_numba import float_image
+        return _to_image(self.shape, self.index, values, fill, dtype, backend)
 
-            out = float_image(values, self.index, self.shape[0] * self.shape[1], fill)
-            return out.reshape(*self.shape, *values.shape[1:])
-        if np.dtype(dtype).kind == "f" and values.dtype.kind == "f":
-            big = np.finfo(dtype).max
-            values = np.clip(values, -big, big)
-        out = np.full((self.shape[0] * self.shape[1], *values.shape[1:]), fill, dtype=dtype)
-        out[self.index] = values
-        return out.reshape(*self.shape, *values.shape[1:])
+
+@numpy_side("float_image")
+def _to_image(
+    shape: tuple[int, int],
+    index: np.ndarray,
+    values: np.ndarray,
+    fill: float = 0.0,
+    dtype=np.float32,
+    backend: str = "numpy",
+) -> np.ndarray:
+    """:meth:`Geometry.to_image` of a Geometry of image ``shape`` and pixels ``index``."""
+    values = np.asarray(values)
+    if np.dtype(dtype).kind == "f" and values.dtype.kind == "f":
+        big = np.finfo(dtype).max
+        values = np.clip(values, -big, big)
+    out = np.full((shape[0] * shape[1], *values.shape[1:]), fill, dtype=dtype)
+    out[index] = values
+    return out.reshape(*shape, *values.shape[1:])
+
+
+def _float_values(shape, index, values, fill=0.0, dtype=np.float32, backend="numpy") -> bool:
+    """The compiled side of ``float_image`` takes (P,) or (P, C) floats into float32."""
+    return (
+        np.dtype(dtype) == np.float32
+        and np.asarray(values).dtype.kind == "f"
+        and np.ndim(values) in (1, 2)
+    )
+
+
+@compiled_side("float_image", supports=_float_values)
+def _to_image_compiled(shape, index, values, fill=0.0, dtype=np.float32, backend="numpy"):
+    """:func:`_to_image` of float values into float32 in one compiled pass."""
+    values = np.asarray(values)
+    out = compiled_module("image").float_image(values, index, shape[0] * shape[1], fill)
+    return out.reshape(*shape, *values.shape[1:])
 
 
 def take_rows(image: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -414,7 +390,7 @@ def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) 
     so that tiles use the same one; a whole frame computes it here. Floored at
     1e-12 per channel (a black frame). ``rows``: (P, 3) float64, the lighting at
     the pixels of the whole frame's Geometry (``geom.at(frame.lighting)`` of
-    :func:`prepare` of ``frame`` and ``profile``), which are those same pixels in
+    :func:`geometry_of` of ``frame`` and ``profile``), which are those same pixels in
     the same order: used instead of finding them again (the same value).
     """
     if frame.crop is not None and frame.crop.light_scale is not None:
@@ -433,24 +409,12 @@ def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) 
 def distant_region(
     profile: Profile, r0: np.ndarray, mat: np.ndarray, backend: str = "numpy"
 ) -> Region:
-    """``profile.region(r0, mat)``: γ, weight scale and sampling bounds of P pixels.
-
-    ``backend`` (one of core.params.BACKENDS): where it resolves to numba, the
-    Burley profile's region is computed in one compiled pass
-    (:func:`core.mc.estimator_numba.burley_region`: the same operations; NumPy's
-    passes over (P, 3) float64 arrays were half of :func:`prepare`). Other
-    profiles, and subclasses of Burley, run their own ``region``.
-    """
-    from .profiles.burley import BurleyProfile
-
-    if type(profile) is BurleyProfile and _compiled(backend):
-        from .mc.estimator_numba import burley_region
-
-        return burley_region(profile, r0, mat)
-    return profile.region(r0, mat)
+    """``profile.region(r0, mat)``: γ, weight scale and sampling bounds of P pixels
+    (compiled for the Burley profile where ``backend`` resolves to numba)."""
+    return profile.region(r0, mat, backend=backend)
 
 
-def prepare(
+def geometry_of(
     frame: Frame,
     profile: Profile,
     surface_distance: bool = False,
@@ -589,17 +553,17 @@ def _same_bits(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 
 
 class GeometryCache:
-    """:func:`prepare` that reuses the last frame's Geometry while its passes are unchanged.
+    """:func:`geometry_of` that reuses the last frame's Geometry while its passes are unchanged.
 
     A lighting animation over a still scene (flashing lights, flickering
     candles, a still camera) renders the same Depth, Material Index and Object
     Index passes every frame: the SSS pixels, their footprints, γ, sampling
     bounds and depth-buffer surface are then the same, and only what depends on
     the lighting (the direct part, :attr:`Geometry.direct`) and the Subsurface
-    Weight are taken from the new frame. Bit for bit what :func:`prepare`
+    Weight are taken from the new frame. Bit for bit what :func:`geometry_of`
     returns (tests/core/test_geometry.py). A reused 1920×1080 frame took 8–10
     ms (the comparison, the direct light and the weight) against 90–110 ms for
-    :func:`prepare` with the compiled backend (docs/checks/geometry_reuse.py).
+    :func:`geometry_of` with the compiled backend (docs/checks/geometry_reuse.py).
 
     Reuse needs the same pass bits, camera, crop, material table and profile
     object (core.profiles.factory.ProfileCache returns the same object while the
@@ -625,9 +589,9 @@ class GeometryCache:
         #: Frames served from the cache (for tests and reports).
         self.hits = 0
 
-    def prepare(self, frame: Frame, profile: Profile, **options) -> Geometry:
-        """:func:`prepare` (same keyword options), reusing the last result where valid."""
-        # What prepare() reads of the crop (its light_scale changes with the lighting).
+    def get(self, frame: Frame, profile: Profile, **options) -> Geometry:
+        """:func:`geometry_of` (same keyword options), reusing the last result where valid."""
+        # What geometry_of() reads of the crop (its light_scale changes with the lighting).
         crop = frame.crop and (frame.crop.image, frame.crop.origin, frame.crop.core)
         key = (
             frame.shape,
@@ -649,7 +613,7 @@ class GeometryCache:
                 geom,
                 weight=_weight(frame, geom.index, geom.mat),
                 direct=_direct(frame, geom.index),
-                # The same values; a view of this frame's pass, as prepare() gives.
+                # The same values; a view of this frame's pass, as geometry_of() gives.
                 objects=None if frame.objects is None else frame.objects.reshape(-1),
             )
             # What is made once per Geometry from its own arrays carries over (the
@@ -660,7 +624,7 @@ class GeometryCache:
             fresh.__dict__["_reused"] = True
             return fresh
         self._entries.pop(crop, None)  # stale: free it before preparing anew
-        geom = prepare(frame, profile, **options)
+        geom = geometry_of(frame, profile, **options)
         entries = self._entries
         entries[crop] = (key, profile, tuple(_snapshot(a) for a in passes), geom)
         while len(entries) > 1 and (

@@ -1,130 +1,25 @@
-"""The one method registry: name → what the method is and how to build its processor.
+"""The one method registry: name → what the method is and the processor that runs it.
 
 The same table feeds the sequence driver (core.run), the Blender EnumProperty
 items, the command-line choices and the report columns, so a method added
-here shows up everywhere at once. Importing this module imports no estimator:
-each entry's factory loads its implementation when a processor is built.
-
-A *processor* carries one method's state (the per-pixel history) from frame to
-frame; every processor has the same interface (:class:`Processor`).
+here shows up everywhere at once.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from .mc.processor import MonteCarloProcessor
+from .method import Method, MethodOptions, Processor
+from .params import SSSParams
+from .separable.processor import SeparableProcessor
 
-import numpy as np
-
-from .params import SeparableParams, SSSParams
-
-if TYPE_CHECKING:
-    from .frame import Frame
-    from .profiles.factory import ProfileChoice
-    from .result import FrameResult
-
-#: XOR salt giving the reference its own random stream.
-REFERENCE_SALT = 0x9E3779B9
-
-
-class Processor(Protocol):
-    """What every method's processor offers the sequence driver."""
-
-    method: Method
-
-    def process(self, frame: Frame) -> FrameResult:
-        """Post-process the next frame of the sequence."""
-
-    def state(self) -> dict[str, np.ndarray]:
-        """The state carried to the next frame, as named arrays (empty: stateless)."""
-
-    def restore(self, state: Mapping[str, np.ndarray]) -> None:
-        """Continue from a :meth:`state` (bit for bit)."""
-
-
-@dataclass(frozen=True)
-class MethodOptions:
-    """Settings beyond :class:`SSSParams` that some methods take.
-
-    Attributes
-    ----------
-    profile : core.profiles.factory.ProfileChoice or None
-        Profile / measured material for every slot (None: each material's own).
-    separable : SeparableParams
-        Kernel, taps and jitter of the ``separable`` method.
-    """
-
-    profile: ProfileChoice | None = None
-    separable: SeparableParams = field(default_factory=SeparableParams)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form (run signatures, reports)."""
-        profile = None
-        if self.profile is not None and not self.profile.is_default:
-            profile = self.profile.to_dict()
-        return {"profile": profile, "separable": self.separable.to_dict()}
-
-
-Factory = Callable[["Method", SSSParams, MethodOptions], Processor]
-
-
-def _monte_carlo(method: Method, params: SSSParams, options: MethodOptions) -> Processor:
-    from .mc.processor import MonteCarloProcessor
-
-    return MonteCarloProcessor(method, params, options)
-
-
-def _separable(method: Method, params: SSSParams, options: MethodOptions) -> Processor:
-    from .separable.processor import SeparableProcessor
-
-    return SeparableProcessor(method, params, options)
-
-
-@dataclass(frozen=True)
-class Method:
-    """A post-processing method.
-
-    Attributes
-    ----------
-    name : str
-        Identifier used on the command line, in files and in the UI enum.
-    label : str
-        Short human-readable name.
-    description : str
-        Tooltip / help text.
-    kind : {"none", "fixed", "reference", "adaptive", "separable"}
-        How per-pixel sample counts are chosen.
-    cv : {"none", "online", "constant"}
-        Control variate applied to the tracked value (adaptive only).
-    temporal : {"", "plain", "guided"}
-        Temporal reuse of the distant estimate (core.mc.temporal): none, plain
-        accumulation, or guided by the control (``SSSParams.temporal_mode``).
-    factory : callable (Method, SSSParams, MethodOptions) -> Processor
-    """
-
-    name: str
-    label: str
-    description: str
-    kind: str
-    cv: str = "none"
-    temporal: str = ""
-    factory: Factory = field(default=_monte_carlo, repr=False, compare=False)
-
-    @property
-    def adaptive(self) -> bool:
-        return self.kind == "adaptive"
-
-    @property
-    def monte_carlo(self) -> bool:
-        """True when the method draws distant-scattering samples."""
-        return self.kind in ("fixed", "reference", "adaptive")
-
-    @property
-    def seed_salt(self) -> int:
-        """XORed into the seed: the reference draws an independent stream."""
-        return REFERENCE_SALT if self.kind == "reference" else 0
-
+#: The processor class of each kind of method (:attr:`Method.kind`).
+PROCESSORS = {
+    "none": MonteCarloProcessor,
+    "fixed": MonteCarloProcessor,
+    "adaptive": MonteCarloProcessor,
+    "reference": MonteCarloProcessor,
+    "separable": SeparableProcessor,
+}
 
 METHODS: dict[str, Method] = {
     m.name: m
@@ -191,7 +86,6 @@ METHODS: dict[str, Method] = {
             "Jimenez et al. 2015 separable SSS: two 1D passes per kernel term "
             "(pre-integrated, SVD rank-k, sum of Gaussians or artist kernel)",
             "separable",
-            factory=_separable,
         ),
     )
 }
@@ -218,7 +112,7 @@ def make_processor(
         default separable kernel
     """
     method = get_method(name)
-    return method.factory(method, params or SSSParams(), options or MethodOptions())
+    return PROCESSORS[method.kind](method, params or SSSParams(), options or MethodOptions())
 
 
 def enum_items() -> list[tuple[str, str, str]]:

@@ -42,7 +42,7 @@ HISTORY_PRECISIONS = ("float32", "float16")
 BURLEY_INVERSES = ("exact", "fast")
 DISTANCES = ("surface", "cycles", "planar")
 TEMPORAL_MODES = ("multiplicative", "subtractive")
-#: Implementations of the Monte Carlo sampling step (core.mc.backend).
+#: Implementations of the Monte Carlo sampling step (core.backends.select).
 BACKENDS = ("auto", "numpy", "numba")
 MAX_SPP = 4096
 

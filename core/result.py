@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .backends.twins import compiled_module, compiled_side, numpy_side
 from .geometry import take_rows
-from .mc.backend import compiled as _compiled
 
 if TYPE_CHECKING:
     from .frame import Frame
@@ -80,6 +80,7 @@ class FrameResult:
     distant_pixels: int = 0
 
 
+@numpy_side("composite")
 def composite(
     frame: Frame,
     index: np.ndarray,
@@ -97,7 +98,7 @@ def composite(
     weight : (P,) float in [0, 1], Subsurface Weight w (None: 1)
     backend : one of core.params.BACKENDS; where it resolves to numba, float64
         ``shaded`` is composited in one compiled pass with the same float64
-        operations (:func:`core.mc.estimator_numba.composite`: the same images)
+        operations (:func:`_composite_compiled`: the same images)
 
     Returns
     -------
@@ -106,10 +107,6 @@ def composite(
         elsewhere; clipped to [0, float32 max]
     sss : (H, W, 3) float32, L on SSS pixels and B elsewhere
     """
-    if _compiled(backend) and np.asarray(shaded).dtype == np.float64:
-        from .mc.estimator_numba import composite as compiled_composite
-
-        return compiled_composite(frame, index, shaded, weight)
     shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=_BIG), 0.0, _BIG)
     shape = frame.lighting.shape[:2]
     b = take_rows(frame.lighting, index, shape).astype(np.float64)
@@ -123,6 +120,26 @@ def composite(
     sss = frame.lighting.copy()
     sss.reshape(-1, 3)[index] = shaded
     return np.maximum(out, 0.0, out=out), sss
+
+
+def _float64_shaded(frame, index, shaded, weight=None, backend="numpy") -> bool:
+    """The compiled composite takes float64 ``shaded`` (the estimators' own)."""
+    return np.asarray(shaded).dtype == np.float64
+
+
+@compiled_side("composite", supports=_float64_shaded)
+def _composite_compiled(
+    frame: Frame,
+    index: np.ndarray,
+    shaded: np.ndarray,
+    weight: np.ndarray | None = None,
+    backend: str = "numpy",
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`composite` in two compiled passes (a dozen NumPy passes over the image
+    and fancy-indexed rows otherwise): the same images."""
+    return compiled_module("image").composite(
+        frame.combined, frame.lighting, frame.albedo, index, shaded, weight
+    )
 
 
 def assemble(

@@ -59,9 +59,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .frame import Crop, Frame
-from .geometry import compact_slots, light_scale, slot_keys
-from .methods import Method, MethodOptions, get_method, make_processor
+from .frame import Crop, Frame, compact_slots, slot_keys
+from .geometry import light_scale
+from .method import Method, MethodOptions
+from .methods import get_method, make_processor
 from .params import SSSParams
 from .profiles.base import Profile
 from .profiles.factory import ProfileCache

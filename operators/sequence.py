@@ -12,8 +12,8 @@ import traceback
 import bpy
 from bpy.types import Operator
 
+from ..core.backends.select import describe as describe_backend
 from ..core.io.errors import CheckpointError, OutputError, PassError
-from ..core.mc.backend import describe as describe_backend
 from ..core.params import ParameterError
 from ..sss_addon import precompile
 from ..sss_addon.blender import render

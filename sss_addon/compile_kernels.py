@@ -4,7 +4,7 @@ Started by :func:`sss_addon.precompile.start_background` as
 ``python compile_kernels.py <package folder> <package name> [<pixels>]``: it imports the
 extension's ``core`` under the same module names as the process that started
 it (``bl_ext.user_default.cvsss`` inside Blender), so the cache entries it
-writes are the ones that process loads, and runs ``core.mc.backend.warm_up``.
+writes are the ones that process loads, and runs ``core.backends.compile.compile_all``.
 With ``pixels`` (the job's frame size, H·W) it first compiles what frames of
 that size take and prints ``{"ready": s}``, the moment the job may load them,
 then goes on with the rest. Every kernel compiled, it stamps the cache
@@ -44,10 +44,10 @@ def main() -> None:
         module = importlib.util.module_from_spec(spec)
         sys.modules[package] = module
         spec.loader.exec_module(module)
-        backend = importlib.import_module(package + ".core.mc.backend")
+        backend = importlib.import_module(package + ".core.backends.compile")
         if pixels is not None:
-            print(json.dumps({"ready": backend.warm_up(pixels)}), flush=True)
-        out = {"seconds": backend.warm_up()}
+            print(json.dumps({"ready": backend.compile_all(pixels)}), flush=True)
+        out = {"seconds": backend.compile_all()}
     except Exception as exc:  # reported to the parent, which compiles on its own
         out = {"error": f"{type(exc).__name__}: {exc}"}
     print(json.dumps(out), flush=True)

@@ -1,7 +1,7 @@
 """The first use of the numba backend on a machine: compiling its kernels, said out loud.
 
 The first job that samples on the numba backend compiles the kernels
-(``core.mc.backend.warm_up``; ``make bench`` reports ``jit.compile_s``, 47–52 s
+(``core.backends.compile.compile_all``; ``make bench`` reports ``jit.compile_s``, 47–52 s
 on the 2-core bench machine); later processes load them from numba's disk
 cache in under a second. Compiled inside the first frame's post-process, that
 minute passed without a word: Blender's UI froze, a headless render printed
@@ -26,7 +26,7 @@ at once.
 
 A process of its own can compile beside Blender: :func:`start_background`
 runs ``compile_kernels.py`` on Blender's Python at low priority when the cache
-is not complete (``core.mc.backend.kernels_cached``). The add-on starts it
+is not complete (``core.backends.cache.is_complete``). The add-on starts it
 when it registers in Blender's UI (installed, updated, or Blender opened), so
 that the minute passes while the user works, and every render job starts it
 before Blender renders the first frame, with its frame size, whose build the
@@ -49,7 +49,9 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..core.mc import backend as mc_backend
+from ..core.backends import cache as numba_cache
+from ..core.backends import select
+from ..core.backends.compile import compile_all
 from ..core.methods import METHODS
 
 #: A compile still running after this many seconds is announced; one that took longer is
@@ -70,7 +72,7 @@ def prepared(requested: str, methods: Sequence[str]) -> bool:
     """Whether frames of ``methods`` on backend ``requested`` can be processed without
     :func:`prepare` compiling first: NumPy, no method that samples (``none``,
     ``separable``), or the kernels already prepared in this process."""
-    return _nothing_to_prepare(requested, methods) or not mc_backend.compiled(requested)
+    return _nothing_to_prepare(requested, methods) or not select.compiled(requested)
 
 
 def _nothing_to_prepare(requested: str, methods: Sequence[str]) -> bool:
@@ -91,7 +93,7 @@ def prepare(
 
     ``methods``: the job's method names (nothing to do when none samples);
     ``pixels``: the frames' pixel count (H·W), so that only the sampling kernel's
-    build for that size compiles (``core.mc.backend.warm_up``); None: both builds.
+    build for that size compiles (``core.backends.compile.compile_all``); None: both builds.
     Once per process; NumPy returns at once, without importing numba. With
     ``log``, a compile still running after :data:`NOTICE` seconds is announced and
     then reported with its time; a failure is logged, and the frame then compiles
@@ -102,7 +104,7 @@ def prepare(
     _wait_for_background(log)
     # numba's threading layer (Blender's TBB inside Blender) starts on this thread, as
     # it did when the first frame compiled the kernels; the thread's kernels join it.
-    mc_backend.threads()
+    select.threads()
     began = time.perf_counter()
     thread = threading.Thread(target=_compile, args=(pixels,), name="cvsss-compile")
     _state.update(began=began, error=None)
@@ -119,7 +121,7 @@ def prepare(
     elif seconds > NOTICE:
         log(
             f"compiled the numba kernels in {seconds:.1f} s; later runs load them from "
-            f"{mc_backend.cache_location()}"
+            f"{numba_cache.location()}"
         )
 
 
@@ -136,7 +138,7 @@ def start_background(
     first (:func:`prepare` waits for those only); None: all, in their order.
     Nothing starts for NumPy or methods that do not sample, when the kernels are
     prepared in this process, when numba is not installed or the cache is complete
-    already (``core.mc.backend.kernels_cached``; numba is not imported here), when
+    already (``core.backends.cache.is_complete``; numba is not imported here), when
     this process started one before, or with ``CVSSS_BACKGROUND_COMPILE=0``. ``log``
     is told that it started. Safe beside Blender's render: no LLVM in this process.
     Never raises: where it cannot start, the first frame compiles as before.
@@ -154,9 +156,9 @@ def _start(requested, methods, log, pixels) -> bool:
     if _nothing_to_prepare(requested, methods):
         return False
     # Without importing numba (Blender's start-up): installed, and not cached yet.
-    # kernels_cached() has pointed NUMBA_CACHE_DIR, which the child inherits, at a
+    # numba_cache.is_complete() has pointed NUMBA_CACHE_DIR, which the child inherits, at a
     # writable folder where numba's default one is read-only.
-    if not _installed("numba") or mc_backend.kernels_cached():
+    if not _installed("numba") or numba_cache.is_complete():
         return False
     package = __name__.rsplit(".", 2)[0]  # e.g. bl_ext.user_default.cvsss
     root = Path(__file__).resolve().parents[1]
@@ -249,7 +251,7 @@ def _wait_for_background(log: Callable[[str], None] | None) -> None:
 
 def _compile(pixels: int | None) -> None:
     try:
-        mc_backend.warm_up(pixels)
+        compile_all(pixels)
     except Exception as exc:  # the frame's own call raises it where it belongs
         _state["error"] = exc
     _state["ended"] = time.perf_counter()

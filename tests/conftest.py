@@ -1,7 +1,8 @@
-"""Shared test configuration: fixed seeds, the bpy marker lane, and the kernels' preparation
-state (``no_compile``, ``slow_compile``)."""
+"""Shared test configuration: fixed seeds, the NumPy-only lane (``--numpy-only``) and the
+compiled passes' preparation state (``no_compile``, ``slow_compile``)."""
 
 import os
+import sys
 import threading
 import time
 
@@ -13,6 +14,31 @@ import pytest
 # cache is not stamped complete yet, a job would otherwise start one and log two more
 # lines depending on which tests ran before it.
 os.environ["CVSSS_BACKGROUND_COMPILE"] = "0"
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--numpy-only",
+        action="store_true",
+        help="run as where numba has no wheel (Windows on ARM): numba and llvmlite cannot "
+        "be imported, so the core runs on NumPy and tests that need numba skip",
+    )
+
+
+class _NoNumba:
+    """An import hook that refuses numba and llvmlite, as a platform without their wheels."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("numba", "llvmlite"):
+            raise ImportError(f"{name} is not installed (--numpy-only)")
+        return None
+
+
+def pytest_configure(config):
+    if config.getoption("--numpy-only"):
+        if any(name.split(".")[0] in ("numba", "llvmlite") for name in sys.modules):
+            raise pytest.UsageError("--numpy-only: numba was imported before the tests")
+        sys.meta_path.insert(0, _NoNumba())
 
 
 @pytest.fixture
@@ -41,21 +67,21 @@ def no_compile():
 
 @pytest.fixture
 def slow_compile(monkeypatch):
-    """``slow_compile(seconds, error=None)``: the kernels' warm-up becomes a sleep (then
+    """``slow_compile(seconds, error=None)``: compiling the passes becomes a sleep (then
     raises ``error``); returns the list of its calls, (pixels, thread name) each."""
-    from cvsss.core.mc import backend as mc_backend
+    from cvsss.sss_addon import precompile
 
     def make(seconds: float, error: Exception | None = None) -> list:
         calls = []
 
-        def warm_up(pixels=None):
+        def compile_all(pixels=None):
             calls.append((pixels, threading.current_thread().name))
             time.sleep(seconds)
             if error is not None:
                 raise error
             return seconds
 
-        monkeypatch.setattr(mc_backend, "warm_up", warm_up)
+        monkeypatch.setattr(precompile, "compile_all", compile_all)
         return calls
 
     return make

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .color import display_luma, srgb_encode
+from ..color import display_luma, srgb_encode
 
 #: PSNR reported when the images are identical on the mask (avoids inf in CSV/JSON).
 PSNR_CAP_DB = 100.0

@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backends.twins import compiled_module, compiled_side, numpy_side
 from ..params import SSSParams
-from .backend import compiled
 
 
+@numpy_side("spvg_counts")
 def sample_counts(
     var_prev: np.ndarray,
     mbar_prev: np.ndarray,
@@ -43,14 +44,7 @@ def sample_counts(
     Returns
     -------
     (P,) int32 counts in {0} ∪ [β_min, β_max].
-
-    Where ``params.backend`` resolves to numba, one compiled pass computes the
-    same counts (:func:`core.mc.estimator_numba.spvg_counts`).
     """
-    if compiled(params.backend):
-        from .estimator_numba import spvg_counts
-
-        return spvg_counts(var_prev, mbar_prev, valid, gamma_max, params)
     s0 = params.target_variance
     var = np.where(valid, np.asarray(var_prev, dtype=np.float64), s0)
     mbar = np.where(valid, np.asarray(mbar_prev, dtype=np.float64), params.initial_count)
@@ -68,6 +62,7 @@ def sample_counts(
     return m
 
 
+@numpy_side("spvg_update")
 def update_history(
     mu: np.ndarray,
     var: np.ndarray,
@@ -91,14 +86,7 @@ def update_history(
     -------
     mu, var, mbar : (P,) float64, history at t
     valid : (P,) bool, history valid at t (false where m_t = 0)
-
-    Where ``params.backend`` resolves to numba, one compiled pass computes the
-    same values (:func:`core.mc.estimator_numba.spvg_update`).
     """
-    if compiled(params.backend):
-        from .estimator_numba import spvg_update
-
-        return spvg_update(mu, var, mbar, valid, tracked, counts, params)
     eta = params.eta
     s = np.asarray(tracked, dtype=np.float64)
     mu_prev = np.where(valid, np.asarray(mu, dtype=np.float64), s)
@@ -117,3 +105,22 @@ def update_history(
     mu_new = np.nan_to_num(mu_new, nan=0.0, posinf=big, neginf=-big)
     mbar_new = np.nan_to_num(mbar_new, nan=params.initial_count, posinf=big, neginf=0.0)
     return mu_new, var_new, mbar_new, np.asarray(counts) > 0
+
+
+@compiled_side("spvg_counts")
+def _sample_counts_compiled(var_prev, mbar_prev, valid, gamma_max, params: SSSParams):
+    """:func:`sample_counts` in one compiled pass: the same counts."""
+    p = params
+    return compiled_module("adaptive").spvg_counts(
+        var_prev, mbar_prev, valid, gamma_max, p.target_variance, p.initial_count, p.eta,
+        p.kappa, p.beta_min, p.beta_max, p.eps_u,
+    )  # fmt: skip
+
+
+@compiled_side("spvg_update")
+def _update_history_compiled(mu, var, mbar, valid, tracked, counts, params: SSSParams):
+    """:func:`update_history` in one compiled pass: the same bits."""
+    return compiled_module("adaptive").spvg_update(
+        mu, var, mbar, valid, tracked, counts, params.eta, params.target_variance,
+        params.initial_count,
+    )  # fmt: skip

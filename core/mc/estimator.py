@@ -98,15 +98,15 @@ in the profile is read from tables built once per profile
 inverse CDF, indexed by √t, CDF error < 5e-7), the channel mixture's density
 at that radius (the weights' denominator, from the same table position), and
 the unit pdf at the surface distance. The direction is one of 4096 bin
-centres read from :data:`core.sampling.sequence.DIRECTIONS`. The channel and
+centres read from :data:`core.sampling.qmc.DIRECTIONS`. The channel and
 the tail value are an affine map of the R2 coordinate per pixel (``t = t_a +
 t_b·u``). A sample is then integer hashing, a square root, a handful of
 table reads, the gather of its texel and a division — no logarithm,
 exponential or trigonometric call.
 
-Two backends take the same samples (:mod:`core.mc.backend`): this module's
-NumPy batches, and a compiled loop per pixel
-(:mod:`core.mc.estimator_numba`) for the Burley profile when numba imports.
+Two backends take the same samples (the ``sampling`` twin of
+:mod:`core.backends.twins`): this module's NumPy batches, and a compiled loop per
+pixel (:mod:`core.backends.numba.sampling`) for the Burley profile when numba imports.
 They do the same float32 operations in the same order (no library calls on
 either side), so they agree to float32 rounding — on the test frames to the
 last bit.
@@ -118,11 +118,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backends.select import threads
+from ..backends.twins import compiled_module, compiled_side, numpy_side
 from ..geometry import Geometry
 from ..profiles.base import Profile
 from ..profiles.burley import BurleyProfile, pdf_from_table
-from ..sampling.sequence import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
-from . import backend as backends
+from ..sampling.qmc import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
 
 # The direction table's columns, contiguous: a strided column costs the sampling
 # loop several times a contiguous one.
@@ -361,7 +362,7 @@ def estimate_distant(
 
     Parameters
     ----------
-    geom : Geometry from :func:`core.geometry.prepare`
+    geom : Geometry from :func:`core.geometry.geometry_of`
     lighting : (H, W, 3) float32, B (linear)
     depth : (H, W) float, planar depth, scene units
     profile : Profile (over the compact slots of ``geom``)
@@ -372,7 +373,7 @@ def estimate_distant(
         arrays stay in the CPU's caches (65536 samples ≈ 8 MB in all), large enough
         that NumPy's cost per call is small (32768 took 7 % longer at 640×360)
     variance : bool, also estimate the variance of Î's luminance from the samples
-    backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.mc.backend`);
+    backend : {"auto", "numpy", "numba"}, implementation (:mod:`core.backends.select`);
         numba runs the Burley profile, other profiles run on NumPy
     disk : bool, weigh with the kernel of Cycles' disk estimator instead of the
         profile at the surface distance (with ``geom.surface``; module doc)
@@ -388,7 +389,7 @@ def estimate_distant(
     -------
     DistantEstimate
     """
-    # The disk kernel lives on the depth-buffer surface (prepare(surface_distance=True)),
+    # The disk kernel lives on the depth-buffer surface (geometry_of(surface_distance=True)),
     # which a frame without SSS pixels does not have.
     disk = disk and geom.surface is not None
     counts = np.asarray(counts, dtype=np.int64)
@@ -397,62 +398,23 @@ def estimate_distant(
     every = active.size == geom.size
     act_counts = counts if every else counts[active]
     total = int(act_counts.sum())
-    compiled = (
-        total > 0
-        and type(profile) is BurleyProfile  # a subclass may sample differently
-        and backends.compiled(backend)
-    )
-    # The kernel reads B as float32 (its texels): it starts the rows where that is B.
-    start = compiled and every and lighting.dtype == np.float32
+    if total == 0:
+        distant = geom.gamma * geom.at(lighting).astype(np.float64)
+        return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
+    # Visiting every pixel, the sampling step starts each row at γ·B(p) itself (the
+    # compiled side in its pass over the pixels: NumPy's γ·B took 4.8 ms at 1920×1080).
+    start = every and lighting.dtype == np.float32
     if start:
-        distant = np.empty((geom.size, 3))  # the kernel writes every row (below)
+        distant = np.empty((geom.size, 3))
     else:
         distant = geom.gamma * geom.at(lighting).astype(np.float64)
-    if total == 0:
-        return DistantEstimate(distant, 0, 0, np.zeros(geom.size) if variance else None)
     counted = total if geom.core is None else int(act_counts[geom.core[active]].sum())
-    if compiled:
-        from .estimator_numba import run_kernel
-
-        # The kernel adds each pixel's mean to ``distant`` itself; visiting every
-        # pixel, it also starts each row at γ·B(p) (the same float64 operations).
-        var_sums, fallback = run_kernel(
-            geom,
-            profile,
-            counts,
-            active,
-            lighting,
-            depth,
-            frame,
-            seed,
-            depth_slope,
-            variance,
-            disk,
-            hidden_light,
-            contact,
-            distant=distant,
-            start=start,
-            samples=total,
-        )
-    else:
-        pix = active_pixels(geom, profile, counts, active, frame, seed)
-        sums, var_sums, fallback = _numpy_sums(
-            geom,
-            pix,
-            lighting,
-            depth,
-            profile,
-            depth_slope,
-            variance,
-            chunk_samples,
-            disk,
-            hidden_light,
-            contact,
-        )
-        if active.size == geom.size:
-            distant += sums / act_counts[:, None]
-        else:
-            distant[active] += sums / act_counts[:, None]
+    var_sums, fallback = distant_sums(
+        geom, profile, counts, active, lighting, depth, frame=frame, seed=seed,
+        depth_slope=depth_slope, variance=variance, disk=disk, hidden_light=hidden_light,
+        contact=contact, chunk_samples=chunk_samples, distant=distant, start=start,
+        samples=total, backend=backend,
+    )  # fmt: skip
     spread = None
     if variance:
         var_sum = np.zeros((geom.size, 2))
@@ -463,6 +425,69 @@ def estimate_distant(
             spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
         spread[(m_all == 0) | (geom.gamma_sum == 0)] = 0.0
     return DistantEstimate(distant, counted, int(fallback), spread)
+
+
+@numpy_side("sampling")
+def distant_sums(
+    geom: Geometry,
+    profile: Profile,
+    counts: np.ndarray,
+    active: np.ndarray,
+    lighting: np.ndarray,
+    depth: np.ndarray,
+    *,
+    frame: int,
+    seed: int,
+    depth_slope: float,
+    variance: bool,
+    disk: bool,
+    hidden_light: float,
+    contact: float,
+    chunk_samples: int,
+    distant: np.ndarray,
+    start: bool,
+    samples: int,
+    backend: str = "numpy",
+) -> tuple[np.ndarray | None, int]:
+    """Add each ``active`` pixel's mean weighted difference to its row of ``distant``.
+
+    Parameters
+    ----------
+    geom, profile, lighting, depth, frame, seed, depth_slope, variance, disk,
+    hidden_light, contact, chunk_samples : as :func:`estimate_distant`
+    counts : (G,) int64, samples per SSS pixel; active : (P,) int64, the pixels of
+        ``geom`` that take samples (counts > 0 and Σγ > 0)
+    distant : (G, 3) float64, written in place: γ·B(p) on entry (with ``start``, every
+        pixel of ``geom`` active: uninitialised, and set here to γ·B(p) first)
+    samples : int, Σ counts[active] (the compiled side picks its build with it)
+    backend : one of core.params.BACKENDS (the compiled side: :func:`_distant_sums_compiled`)
+
+    Returns
+    -------
+    var_sums : (P, 2) float64 Σy and Σy² of the samples' luminance (None without
+        ``variance``); fallback : int, samples that fell back (of a crop's core pixels)
+    """
+    if start:
+        distant[...] = geom.gamma * geom.at(lighting).astype(np.float64)
+    pix = active_pixels(geom, profile, counts, active, frame, seed)
+    sums, var_sums, fallback = _numpy_sums(
+        geom,
+        pix,
+        lighting,
+        depth,
+        profile,
+        depth_slope,
+        variance,
+        chunk_samples,
+        disk,
+        hidden_light,
+        contact,
+    )
+    if active.size == geom.size:
+        distant += sums / counts[:, None]
+    else:
+        distant[active] += sums / counts[active][:, None]
+    return var_sums, fallback
 
 
 def _numpy_sums(
@@ -966,3 +991,151 @@ def _density(profile: Profile, r: np.ndarray, mat: np.ndarray, pix: Pixels, per_
     if profile.pixel_weight_scale:
         dens *= per_sample(pix.ws)
     return dens
+
+
+#: Names of the compiled sampling step's values kept in a Geometry's memos (core.geometry.Geometry.memo).
+#: The texels are a function of the Geometry and its passes except for the lighting, so
+#: a Geometry reused for the next frame of a still scene (core.geometry.GeometryCache)
+#: rewrites only the lighting of its last call's texels, in place (at 1920×1080 a fresh
+#: 66 MB texel array took 16.4 ms per frame, inside the frame). With them, the order
+#: that visits all of the Geometry's pixels. Kept for reused Geometries only
+#: (Geometry.reused): the texels are 32 bytes per pixel of the frame (118 MB at
+#: 2560×1440), held between frames.
+_TEXELS, _ORDER = "numba_texels", "numba_tile_order"
+
+
+def _plain_burley(geom, profile, *_args, **_kwargs) -> bool:
+    """The compiled sampling step reads Burley's tables (a subclass may sample otherwise)."""
+    return type(profile) is BurleyProfile
+
+
+@compiled_side("sampling", supports=_plain_burley)
+def _distant_sums_compiled(
+    geom: Geometry,
+    profile: BurleyProfile,
+    counts: np.ndarray,
+    active: np.ndarray,
+    lighting: np.ndarray,
+    depth: np.ndarray,
+    *,
+    frame: int,
+    seed: int,
+    depth_slope: float,
+    variance: bool,
+    disk: bool,
+    hidden_light: float,
+    contact: float,
+    chunk_samples: int,
+    distant: np.ndarray,
+    start: bool,
+    samples: int,
+    backend: str = "numpy",
+) -> tuple[np.ndarray | None, int]:
+    """:func:`distant_sums` with the compiled loop per pixel
+    (:func:`core.backends.numba.sampling.pixel_sums`).
+
+    Adds each active pixel's mean weighted difference to its row of ``distant``
+    ((G, 3) float64, in place; see pixel_sums): in the kernel, where a pixel's
+    sums are at hand, instead of dividing and scattering (P, 3) sums afterwards
+    (1.2 ms at 640×360, 5.7 ms through NumPy's fancy indexing when some pixels
+    take no samples, against ~60 ms for the samples). With ``start`` (every
+    pixel of ``geom`` active) it sets each row to γ·B(p) plus that mean, so
+    ``distant`` may come uninitialised. ``samples`` (Σ counts[active]) picks the build
+    (:func:`core.backends.numba.sampling.build_for`). Returns the (P, 2) luminance sums
+    (None without ``variance``) and the fall-back count.
+    """
+    k = compiled_module("sampling")
+    if start and active.size != geom.size:
+        raise ValueError("start needs every pixel of the Geometry active")
+    f32 = np.float32
+    h, w = geom.shape
+    full_h, full_w = geom.image_shape
+    oy, ox = geom.origin
+    surf = geom.surface
+    if surf is None:
+        mode, unit, centre, area = k.PLANAR, (1.0, 1.0), (0.0, 0.0), np.zeros(1, f32)
+    else:
+        mode = k.ORTHO if surf.ortho else k.PERSPECTIVE
+        unit, centre, area = surf.unit, surf.centre, surf.area
+    light = np.ascontiguousarray(lighting.reshape(-1, 3), dtype=f32)
+    # The texels of the Geometry's last call, relit (see _TEXELS); taken out of
+    # its memos while this call uses them.
+    held = geom.memos.pop(_TEXELS, None)
+    if held is None:
+        normal = surf.normal if surf is not None else np.zeros((1, 3), f32)
+        keys, inv_k = k.surface_keys(geom.slots, geom.objects)
+        texel = k.texels(
+            light,
+            np.ascontiguousarray(depth.reshape(-1), dtype=f32),
+            np.ascontiguousarray(area, dtype=f32),
+            normal,
+            keys,
+            surf is not None,
+        )
+    else:
+        texel, inv_k = held
+        k.relight(light, texel)
+    if active.size == geom.size and geom.reused:  # every SSS pixel, as in most frames
+        order = geom.memo(_ORDER, lambda: k.tile_order(geom.x, geom.y, full_w))
+    else:
+        order = k.tile_order(geom.x, geom.y, full_w, active)
+    first = active[0]
+    var, fb = k.build_for(samples, active.size)(
+        active,
+        order,
+        counts,
+        geom.x,
+        geom.y,
+        geom.gamma,
+        geom.gamma_sum,
+        geom.lo,
+        geom.hi,
+        geom.mat.astype(np.int32, copy=False),
+        geom.fw,
+        geom.fh,
+        geom.depth,
+        geom.index,
+        geom.chromatic,
+        np.ones(geom.size, np.bool_) if geom.core is None else geom.core,
+        np.uint64((np.int64(frame) ^ np.int64(seed)) & 0xFFFFFFFF),
+        profile.d,
+        texel,
+        profile._rtab.reshape(-1),
+        f32(profile.truncate),
+        DIRECTIONS.reshape(-1),
+        profile._pscale,
+        profile._inv_d,
+        profile._ptab.reshape(-1),
+        profile._ntab.reshape(-1),
+        f32(geom.fw[first] / geom.fh[first]),
+        bool(disk),
+        f32(hidden_light),
+        geom.direct if geom.direct is not None else np.zeros((geom.size, 3), f32),
+        geom.objects is not None,
+        inv_k,
+        f32(contact),
+        w,
+        h,
+        f32(full_w),
+        f32(full_h),
+        ox,
+        oy,
+        f32(depth_slope),
+        mode,
+        f32(unit[0]),
+        f32(unit[1]),
+        f32(unit[0] * unit[1]),
+        f32(centre[0]),
+        f32(centre[1]),
+        float(unit[0]),
+        float(unit[1]),
+        float(centre[0]),
+        float(centre[1]),
+        variance,
+        distant,
+        bool(start),
+        threads(),
+    )
+    if geom.reused:
+        geom.memos[_TEXELS] = (texel, inv_k)
+    return (var if variance else None), int(fb.sum())

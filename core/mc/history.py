@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..backends.twins import compiled_module, compiled_side, numpy_side
+
 H_FIELDS = ("mu", "var", "mbar")
 J_FIELDS = ("sxx", "sxy", "syy", "zf", "zg")
 COV_FIELDS = ("sxx", "sxy", "syy")
@@ -171,95 +173,97 @@ class History:
         return 1.0
 
     def read(self, name: str, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
-        """Values of a buffer at flat pixel ``index`` as float64, true units (compiled
-        where :meth:`read_columns` is)."""
-        if self.compiled_io(backend, index, (name,)):
-            return self._read_compiled((name,), index)[:, 0]
-        v = self.buffers[name].reshape(-1)[index].astype(np.float64)
-        scale = self.scale(name)
-        if scale != 1.0:
-            v /= scale
-        return v
+        """(P,) float64 values of buffer ``name`` at flat pixel ``index``, true units
+        (:meth:`read_columns` of one buffer)."""
+        return self.read_columns((name,), index, backend)[:, 0]
 
     def write(
         self, name: str, index: np.ndarray, values: np.ndarray, backend: str = "numpy"
     ) -> None:
         """Store float64 ``values`` (true units) at flat ``index``, rounding to storage
-        (compiled where :meth:`write_columns` is)."""
+        (:meth:`write_columns` of one buffer)."""
         v = np.asarray(values, dtype=np.float64)
-        if self.compiled_io(backend, index, (name,)):
-            self._write_compiled((name,), index, v.reshape(-1, 1))
-            return
-        scale = self.scale(name)
-        if scale != 1.0:
-            with np.errstate(over="ignore"):
-                v = v * scale
-        big = _FINITE_MAX["float16" if self.precision == "float16" else "float32"]
-        v = np.clip(v, -big, big)  # ±inf -> ±big; NaN stays NaN ...
-        nan = np.isnan(v)
-        if nan.any():
-            v[nan] = 0.0  # ... and is stored as 0
-        self.buffers[name].reshape(-1)[index] = v.astype(self.dtype)
+        self.write_columns((name,), index, v.reshape(-1, 1), backend)
 
+    @numpy_side("history_read")
     def read_columns(self, names, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
-        """(P, k) float64: :meth:`read` of each of the k buffers ``names`` as a column.
+        """(P, k) float64: the k buffers ``names`` at flat pixel ``index``, one column
+        each, in true units (stored values divided by :meth:`scale`).
 
         Where ``backend`` resolves to numba and the buffers are float32, one compiled
-        pass per buffer (:func:`core.mc.estimator_numba.read_column`), the same values.
+        pass per buffer (:meth:`_read_compiled`), the same values.
         """
-        if self.compiled_io(backend, index, names):
-            return self._read_compiled(names, index)
-        return np.stack([self.read(n, index) for n in names], axis=-1)
+        columns = []
+        for name in names:
+            v = self.buffers[name].reshape(-1)[index].astype(np.float64)
+            scale = self.scale(name)
+            if scale != 1.0:
+                v /= scale
+            columns.append(v)
+        return np.stack(columns, axis=-1)
 
+    @numpy_side("history_write")
     def write_columns(
         self, names, index: np.ndarray, values: np.ndarray, backend: str = "numpy"
     ) -> None:
-        """:meth:`write` of each column of ``values`` ((P, k) float) to the buffer of the
-        same position in ``names``.
+        """Store each column of ``values`` ((P, k) float, true units) into the buffer of
+        the same position in ``names`` at flat ``index``: times :meth:`scale`, clipped
+        to the storage type's finite range (±inf too), NaN stored as 0, rounded.
 
         Where ``backend`` resolves to numba and the buffers are float32, one compiled
-        pass per buffer (:func:`core.mc.estimator_numba.write_column`), the same stores.
+        pass per buffer (:meth:`_write_compiled`), the same stores.
         """
         values = np.asarray(values, dtype=np.float64)
-        if self.compiled_io(backend, index, names):
-            self._write_compiled(names, index, values)
-            return
+        big = _FINITE_MAX["float16" if self.precision == "float16" else "float32"]
         for c, name in enumerate(names):
-            self.write(name, index, values[:, c])
+            v = values[:, c]
+            scale = self.scale(name)
+            if scale != 1.0:
+                with np.errstate(over="ignore"):
+                    v = v * scale
+            v = np.clip(v, -big, big)  # ±inf -> ±big; NaN stays NaN ...
+            nan = np.isnan(v)
+            if nan.any():
+                v[nan] = 0.0  # ... and is stored as 0
+            self.buffers[name].reshape(-1)[index] = v.astype(self.dtype)
 
-    def compiled_io(self, backend: str, index: np.ndarray, names) -> bool:
+    def compiled_io(self, index: np.ndarray, names) -> bool:
         """Compiled passes can read and write the buffers ``names`` at ``index`` in
-        place: numba backend, int64 indices and contiguous float32 buffers (numba
-        stores no float16; a flat view of a contiguous buffer is the buffer itself, so
-        a write lands in it). The compiled history step asks the same
-        (``MonteCarloProcessor._compiled_step``)."""
-        from .backend import compiled
-
-        if not compiled(backend) or getattr(index, "dtype", None) != np.int64:
+        place: int64 indices and contiguous float32 buffers (numba stores no float16; a
+        flat view of a contiguous buffer is the buffer itself, so a write lands in it).
+        The compiled history step asks the same (:mod:`core.mc.update`)."""
+        if getattr(index, "dtype", None) != np.int64:
             return False
         return all(
             self.buffers[n].dtype == np.float32 and self.buffers[n].flags.c_contiguous
             for n in names
         )
 
-    def _read_compiled(self, names, index: np.ndarray) -> np.ndarray:
-        """:meth:`read_columns` where :meth:`compiled_io` holds."""
-        from .estimator_numba import read_column
+    def _io_compiled(self, names, index, *_args, **_kwargs) -> bool:
+        """``supports`` of the compiled reads and writes: :meth:`compiled_io`."""
+        return self.compiled_io(index, names)
 
-        # Contiguous (no copy where already so): the kernels' warmed-up layout.
+    @compiled_side("history_read", supports=_io_compiled)
+    def _read_compiled(self, names, index: np.ndarray, backend: str = "numpy") -> np.ndarray:
+        """:meth:`read_columns` where :meth:`compiled_io` holds: one pass per buffer."""
+        read_column = compiled_module("history").read_column
+        # Contiguous (no copy where already so): the passes' compiled layout.
         index = np.ascontiguousarray(index)
         out = np.empty((index.shape[0], len(names)))
         for c, name in enumerate(names):
             read_column(self.buffers[name].reshape(-1), index, self.scale(name), out, c)
         return out
 
-    def _write_compiled(self, names, index: np.ndarray, values: np.ndarray) -> None:
-        """:meth:`write_columns` of float64 ``values`` where :meth:`compiled_io` holds."""
-        from .estimator_numba import write_column
-
+    @compiled_side("history_write", supports=_io_compiled)
+    def _write_compiled(
+        self, names, index: np.ndarray, values: np.ndarray, backend: str = "numpy"
+    ) -> None:
+        """:meth:`write_columns` where :meth:`compiled_io` holds: one pass per buffer."""
+        write_column = compiled_module("history").write_column
+        values = np.asarray(values, dtype=np.float64)
         # One row per pixel, as NumPy's assignment broadcasts a scalar or a row, in
-        # the kernel's warmed-up type: contiguous and writable (numba types a
-        # read-only array apart, and would compile again); no copy where it is.
+        # the passes' compiled type: contiguous and writable (numba types a read-only
+        # array apart, and would compile again); no copy where it is.
         index = np.ascontiguousarray(index)
         shape = (index.shape[0], len(names))
         if values.shape != shape:
@@ -280,6 +284,7 @@ class History:
         return sum(b.nbytes for b in self.buffers.values())
 
     # -- reprojection -------------------------------------------------------
+    @numpy_side("reproject")
     def reproject(
         self,
         motion: np.ndarray | None,
@@ -303,20 +308,14 @@ class History:
         backend : one of core.params.BACKENDS; where it resolves to numba (and the
             passes are float32 and integer, as a Frame holds them) the mapping and
             the fetches are compiled passes with the same arithmetic
-            (:func:`core.mc.estimator_numba.reproject_map`): the same history
+            (:meth:`_reproject_compiled`): the same history
 
         Returns
         -------
         History (a new object; ``self`` is unchanged).
         """
-        if depth.shape != self.shape:
-            raise ValueError(
-                f"history is {self.shape[1]}x{self.shape[0]} but the frame is "
-                f"{depth.shape[1]}x{depth.shape[0]}"
-            )
+        self._check_shape(depth)
         h, w = self.shape
-        if self._compiled(backend, motion, depth, material):
-            return self._reproject_compiled(motion, depth, material)
         if motion is None:
             src = np.arange(h * w)
             inside = np.ones(h * w, dtype=bool)
@@ -375,31 +374,39 @@ class History:
             depth=np.asarray(depth, dtype=np.float32).copy(),
         )
 
-    def _compiled(self, backend, motion, depth, material) -> bool:
-        """The compiled reprojection runs: numba backend, the passes' Frame dtypes."""
-        typed = (
+    def _check_shape(self, depth: np.ndarray) -> None:
+        if depth.shape != self.shape:
+            raise ValueError(
+                f"history is {self.shape[1]}x{self.shape[0]} but the frame is "
+                f"{depth.shape[1]}x{depth.shape[0]}"
+            )
+
+    def _frame_dtypes(self, motion, depth, material, backend="numpy") -> bool:
+        """``supports`` of the compiled reprojection: the passes' Frame dtypes."""
+        return (
             depth.dtype == np.float32
             and np.asarray(material).dtype.kind in "iu"
             and (motion is None or motion.dtype == np.float32)
             and self.depth.dtype == np.float32
         )
-        from .backend import compiled
 
-        return typed and compiled(backend)
-
-    def _reproject_compiled(self, motion, depth, material) -> History:
+    @compiled_side("reproject", supports=_frame_dtypes)
+    def _reproject_compiled(self, motion, depth, material, backend="numpy") -> History:
         """:meth:`reproject` as compiled passes: one for the source pixels, one per
-        buffer. At 1920×1080 with 8 float16 buffers 58 → 14 ms static and 131 → 35 ms
-        with motion vectors (one-off ``timeit``s)."""
-        from .estimator_numba import fetch, reproject_map
-
-        src, inside, same = reproject_map(
+        buffer (4x faster than NumPy's at 1920×1080)."""
+        self._check_shape(depth)
+        passes = compiled_module("history")
+        src, inside, same = passes.reproject_map(
             motion, depth, material, self.depth, self.material, REPROJECT_DEPTH_TOLERANCE
         )
         buffers = {
-            k: fetch(v, src, same if k in RESET_FIELDS else inside) for k, v in self.buffers.items()
+            k: passes.fetch(v, src, same if k in RESET_FIELDS else inside)
+            for k, v in self.buffers.items()
         }
-        valid, cv_valid = fetch(self.valid, src, same), fetch(self.cv_valid, src, same)
+        valid, cv_valid = (
+            passes.fetch(self.valid, src, same),
+            passes.fetch(self.cv_valid, src, same),
+        )
         return self._aligned(buffers, valid, cv_valid, depth, material)
 
     # -- checkpoints --------------------------------------------------------

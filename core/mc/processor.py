@@ -14,41 +14,22 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..eval.color import REC709
 from ..frame import Frame
-from ..geometry import Geometry, GeometryCache, light_scale, prepare
-from ..methods import Method, MethodOptions
+from ..geometry import Geometry, GeometryCache, geometry_of, light_scale
+from ..method import Method, MethodOptions
 from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
-from . import adaptive, control_variates, temporal
+from . import adaptive, temporal
 from .estimator import estimate_distant
-from .history import H_FIELDS, J_FIELDS, History
+from .history import History
+from .update import update
 
 #: Kernel of the noise-free proxy of the multiplicative temporal mode: linear tap
 #: reads follow sub-pixel motion of the lighting (with nearest reads the proxy moves in
 #: steps and the accumulated ratio drifts behind a moving shadow).
 PROXY_KERNEL = SeparableParams(kernel="pre_integrated", taps=17, filter="linear")
-
-#: Bound on the tracked luminances f̄, G (their squares stay finite in float64).
-TRACK_LIMIT = 1e150
-
-
-def _luminance(rgb: np.ndarray) -> np.ndarray:
-    """(P,) Rec.709 luminance of (P, 3) float64 ``rgb``, summed in channel order (the
-    compiled history step's order; a matrix product's depends on the BLAS)."""
-    r, g, b = REC709
-    return rgb[:, 0] * r + rgb[:, 1] * g + rgb[:, 2] * b
-
-
-def _bounded(values: np.ndarray) -> np.ndarray:
-    """``values`` clipped to ±TRACK_LIMIT, NaN -> 0."""
-    out = np.clip(values, -TRACK_LIMIT, TRACK_LIMIT)
-    nan = np.isnan(out)
-    if nan.any():
-        out[nan] = 0.0
-    return out
 
 
 def history_fields(method: Method) -> tuple[str, ...]:
@@ -171,7 +152,7 @@ class MonteCarloProcessor:
         # its own history and the passes around it, never its neighbours' results.
         # Temporal reuse reads its 3×3 neighbours' estimates: a tile computes a 1-pixel ring.
         # A still scene (only the lights change) reuses the last frame's Geometry.
-        geom = self._geometry.prepare(
+        geom = self._geometry.get(
             frame,
             profile,
             surface_distance=p.distance != "planar",
@@ -215,7 +196,7 @@ class MonteCarloProcessor:
         alpha = variance = None
         if hist is not None:
             noise = None if est.variance is None else np.sqrt(est.variance)
-            alpha, variance = self._update(hist, geom, m, valid, est.distant, b)
+            alpha, variance = update(hist, geom, m, valid, est.distant, b, self.method.cv, p)
             if self.method.temporal:
                 mode = "plain" if self.method.temporal == "plain" else p.temporal_mode
                 cv_alpha = alpha if self.method.cv == "online" else np.ones(geom.size)
@@ -267,7 +248,7 @@ class MonteCarloProcessor:
             self._proxy_kernels = (profile, build_kernels(profile, PROXY_KERNEL))
         # The separable passes read each other's intermediate results: on a tile
         # they run over every SSS pixel of the window, then the tile's are taken.
-        full = geom if geom.core is None else prepare(frame, profile)
+        full = geom if geom.core is None else geometry_of(frame, profile)
         _, shaded, _ = apply(
             frame,
             profile,
@@ -281,92 +262,3 @@ class MonteCarloProcessor:
         if full is not geom:
             shaded = shaded[np.searchsorted(full.index, geom.index)]
         return shaded - (1.0 - geom.gamma) * b
-
-    def _update(self, hist, geom, m, valid, distant, b):
-        """History (and CV) update after sampling; returns (α, σ²) per SSS pixel."""
-        p = self.params
-        idx = geom.index
-        cv = self.method.cv
-        if self._compiled_step(hist, idx):
-            # One compiled pass: the same operations and stores (see history_step).
-            from .estimator_numba import history_step
-
-            online = cv == "online"
-            var, hist.valid, alpha = history_step(
-                tuple(hist.buffers[k] for k in H_FIELDS),
-                idx,
-                valid,
-                distant,
-                geom.gamma,
-                b,
-                geom.weight,
-                m,
-                cv,
-                p,
-                (tuple(hist.buffers[k] for k in J_FIELDS), hist.cv_valid) if online else None,
-            )
-            if online:  # J is valid where samples were taken, as the history
-                hist.cv_valid = hist.valid.copy()
-            return alpha, var
-        # Tracked luminances are bounded so that their squares (σ², Σ) stay
-        # finite in float64 whatever the exposure and HDR input.
-        # What the image shows of the distant estimate is w·Î (Subsurface Weight w),
-        # so that is what is tracked: a half-weight material needs fewer samples.
-        with np.errstate(over="ignore", invalid="ignore"):
-            f_bar = _luminance(distant * p.exposure)
-            g_known = _luminance((geom.gamma * b) * p.exposure)
-            if not np.all(geom.weight == 1.0):
-                f_bar *= geom.weight
-                g_known *= geom.weight
-        f_bar = _bounded(f_bar)
-        g_known = _bounded(g_known)
-        alpha = np.zeros(geom.size)
-        if cv == "online":
-            alpha = self._online_cv(hist, idx, valid, m, f_bar, g_known)
-            tracked = control_variates.residual(f_bar, g_known, alpha)
-        elif cv == "constant":
-            alpha = np.ones(geom.size)
-            tracked = control_variates.residual(f_bar, g_known, alpha)
-        else:
-            tracked = f_bar
-        mu, var, mbar, new_valid = adaptive.update_history(
-            hist.read("mu", idx),
-            hist.read("var", idx),
-            hist.read("mbar", idx),
-            valid,
-            tracked,
-            m,
-            p,
-        )
-        hist.write("mu", idx, mu)
-        hist.write("var", idx, var)
-        hist.write("mbar", idx, mbar)
-        hist.valid = hist.mask_of(idx, new_valid)
-        alpha = np.where(m > 0, alpha, 0.0)
-        return alpha, np.where(m > 0, var, 0.0)
-
-    def _compiled_step(self, hist: History, index: np.ndarray) -> bool:
-        """The history step runs as one compiled pass where compiled passes can write
-        its buffers in place (:meth:`History.compiled_io`: the numba backend, float32,
-        stored unscaled), the online control variate's J included."""
-        fields = (*H_FIELDS, *(J_FIELDS if self.method.cv == "online" else ()))
-        return hist.compiled_io(self.params.backend, index, fields)
-
-    def _online_cv(self, hist, idx, valid, m, f_bar, g_known) -> np.ndarray:
-        """α from the covariance history of Z = [f̄, ḡ] (Alg. 2), then one EMCM step (Eq. 33)."""
-        p = self.params
-        jv = hist.cv_valid.reshape(-1)[idx] & valid
-        sxx, sxy, syy = (np.where(jv, hist.read(k, idx), 0.0) for k in ("sxx", "sxy", "syy"))
-        z = np.stack([f_bar, g_known], axis=-1)
-        # ζ starts at the first observation (and again after a disocclusion), Σ at 0.
-        zeta = np.where(jv[:, None], hist.read_columns(("zf", "zg"), idx), z)
-        alpha = control_variates.cv_coefficient(sxy, syy, f_bar, g_known, p.eps_alpha)
-        sigma = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
-        sigma, zeta = control_variates.emcm_step(sigma, zeta, z, p.eta_cv)
-        hist.write("sxx", idx, np.where(jv, sigma[:, 0, 0], 0.0))
-        hist.write("sxy", idx, np.where(jv, sigma[:, 0, 1], 0.0))
-        hist.write("syy", idx, np.where(jv, sigma[:, 1, 1], 0.0))
-        hist.write("zf", idx, np.where(jv, zeta[:, 0], f_bar))
-        hist.write("zg", idx, np.where(jv, zeta[:, 1], g_known))
-        hist.cv_valid = hist.mask_of(idx, m > 0)
-        return alpha

@@ -48,8 +48,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backends.twins import compiled_module, compiled_side, numpy_side
 from ..geometry import Geometry
-from .backend import compiled
 from .history import History
 
 TEMPORAL_MODES = ("multiplicative", "subtractive")
@@ -70,6 +70,7 @@ _PROX = ("prox_r", "prox_g", "prox_b")
 _CTL = ("ctl_r", "ctl_g", "ctl_b")
 
 
+@numpy_side("neighbourhood")
 def neighbourhood(
     geom: Geometry, values: np.ndarray, active: np.ndarray, backend: str = "numpy"
 ) -> tuple:
@@ -84,39 +85,14 @@ def neighbourhood(
     values : (P, 3) float
     active : (P,) bool, pixels that hold a value this frame
     backend : one of core.params.BACKENDS; where it resolves to numba this is one
-        compiled pass (:func:`core.mc.estimator_numba.neighbourhood_pass`, the same
-        float64 operations in the same order: the same bits)
+        compiled pass (:func:`_neighbourhood_compiled`, the same float64 operations in
+        the same order: the same bits)
 
     Returns
     -------
     mean, std : (P, 3) float64
     """
     h, w = geom.shape
-    if compiled(backend):
-        from .estimator_numba import neighbour_table, neighbourhood_pass
-
-        mean = np.empty((geom.size, 3))
-        std = np.empty((geom.size, 3))
-        # Which neighbours share the pixel's slot depends on the Geometry alone: made
-        # once, kept with it (a still scene's next frames reuse it).
-        table = geom.memo(
-            "neighbours",
-            lambda: neighbour_table(
-                np.ascontiguousarray(geom.index, np.int64),
-                np.ascontiguousarray(geom.mat, np.int32),
-                _pixel_at(geom),
-                int(w),
-                int(h),
-            ),
-        )
-        neighbourhood_pass(
-            np.ascontiguousarray(values, np.float64),
-            np.ascontiguousarray(active, bool),
-            table,
-            mean,
-            std,
-        )
-        return mean, std
     img = np.full((h * w, 3), np.nan)
     img[geom.index[active]] = values[active]
     mat = np.zeros(h * w, np.int32)
@@ -148,6 +124,37 @@ def _pixel_at(geom: Geometry) -> np.ndarray:
     at = np.full(geom.shape[0] * geom.shape[1], -1, np.int64)
     at[geom.index] = np.arange(geom.size)
     return at
+
+
+@compiled_side("neighbourhood")
+def _neighbourhood_compiled(
+    geom: Geometry, values: np.ndarray, active: np.ndarray, backend: str = "numpy"
+) -> tuple:
+    """:func:`neighbourhood` in one compiled pass: the same bits."""
+    h, w = geom.shape
+    passes = compiled_module("temporal")
+    mean = np.empty((geom.size, 3))
+    std = np.empty((geom.size, 3))
+    # Which neighbours share the pixel's slot depends on the Geometry alone: made
+    # once, kept with it (a still scene's next frames reuse it).
+    table = geom.memo(
+        "neighbours",
+        lambda: passes.neighbour_table(
+            np.ascontiguousarray(geom.index, np.int64),
+            np.ascontiguousarray(geom.mat, np.int32),
+            _pixel_at(geom),
+            int(w),
+            int(h),
+        ),
+    )
+    passes.neighbourhood_pass(
+        np.ascontiguousarray(values, np.float64),
+        np.ascontiguousarray(active, bool),
+        table,
+        mean,
+        std,
+    )
+    return mean, std
 
 
 def reuse(
@@ -194,7 +201,8 @@ def reuse(
         its whole image's).
     backend : one of core.params.BACKENDS; where it resolves to numba the per-pixel
         arithmetic and the neighbourhood statistics are compiled passes
-        (:func:`_step_compiled`; the same values within an ulp of ``log``/``exp``)
+        (:func:`_step_compiled`, the ``reuse_step`` twin; the same values within an ulp
+        of ``log``/``exp``)
 
     Returns
     -------
@@ -212,8 +220,7 @@ def reuse(
     prev = hist.read_columns(_ACC, idx, backend)
     ctl_prev = hist.read_columns(_CTL, idx, backend) if mode != "plain" else None
     prox_prev = hist.read_columns(_PROX, idx, backend) if mode == "multiplicative" else None
-    step = _step_compiled if compiled(backend) else _step
-    acc, out, n_new = step(
+    acc, out, n_new = _step(
         geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps,
         mode=mode, min_weight=min_weight, clamp=clamp, tolerance=tolerance, noise=noise,
         floor=1e-12 * scale @ _Y, backend=backend,
@@ -242,6 +249,7 @@ def _pooled_sigma(
     return np.where(finite, np.sqrt(pooled[:, 0]), np.inf)
 
 
+@numpy_side("reuse_step")
 def _step(
     geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps, *,
     mode, min_weight, clamp, tolerance, noise, floor, backend,
@@ -298,29 +306,29 @@ def _step(
     return acc, np.where(active[:, None], out, distant), n_new
 
 
+@compiled_side("reuse_step")
 def _step_compiled(
     geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps, *,
     mode, min_weight, clamp, tolerance, noise, floor, backend,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """:func:`_step` as two compiled per-pixel passes around the neighbourhoods
-    (:func:`core.mc.estimator_numba.reuse_start`, ``reuse_finish``): the same float64
+    (:func:`core.backends.numba.temporal.reuse_start`, ``reuse_finish``): the same float64
     operations, with libm's ``log`` and ``exp`` (an ulp from NumPy's) and the
     luminance summed in channel order (a matrix product's order is the BLAS's)."""
-    from . import estimator_numba as kernels
-
+    passes = compiled_module("temporal")
     p = geom.size
     f64 = np.float64
     code = {
-        "plain": kernels.PLAIN,
-        "subtractive": kernels.SUBTRACTIVE,
-        "multiplicative": kernels.MULTIPLICATIVE,
+        "plain": passes.PLAIN,
+        "subtractive": passes.SUBTRACTIVE,
+        "multiplicative": passes.MULTIPLICATIVE,
     }[mode]
     none3 = np.zeros((0, 3))
     shift, value = np.empty((p, 3)), np.empty((p, 3))
     n_cut = np.empty(p)
     active = np.ascontiguousarray(active, bool)
     distant = np.ascontiguousarray(distant, f64)
-    kernels.reuse_start(
+    passes.reuse_start(
         distant, np.ascontiguousarray(control, f64), np.ascontiguousarray(alpha, f64),
         none3 if proxy is None else np.ascontiguousarray(proxy, f64),
         np.ascontiguousarray(n, f64), active,
@@ -335,7 +343,7 @@ def _step_compiled(
     use_noise = mode != "plain" and noise is not None
     sigma = _pooled_sigma(geom, noise, active, backend) if use_noise else np.zeros(0)
     acc, out, n_new = np.empty((p, 3)), np.empty((p, 3)), np.empty(p)
-    kernels.reuse_finish(
+    passes.reuse_finish(
         distant, np.ascontiguousarray(prev, f64), value, shift, n_cut, active, mean, std,
         float(clamp), sigma, float(floor), code, use_noise, float(NOISE_SIGMAS),
         float(min_weight), acc, out, n_new,

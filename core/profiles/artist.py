@@ -154,7 +154,7 @@ class ArtistProfile(Profile):
         )
 
     # -- estimator interface ----------------------------------------------------------------
-    def region(self, r0, mat):
+    def region(self, r0, mat, backend="numpy"):
         r0 = np.asarray(r0, dtype=np.float64)[:, None]
         rmax = self._rmax[mat]
         vn, vf, w = self._vn[mat], self._vf[mat], self.weight[mat]

@@ -74,8 +74,12 @@ class Profile(ABC):
         """(K,) bool: slots whose channels have different profiles."""
 
     @abstractmethod
-    def region(self, r0: np.ndarray, mat: np.ndarray) -> Region:
-        """γ, weight scale and sampling bounds for pixels with radius ``r0`` (P,)."""
+    def region(self, r0: np.ndarray, mat: np.ndarray, backend: str = "numpy") -> Region:
+        """γ, weight scale and sampling bounds for pixels with radius ``r0`` (P,).
+
+        ``backend``: one of core.params.BACKENDS (a profile with a compiled region,
+        Burley's, runs it where this resolves to numba; the others ignore it).
+        """
 
     @abstractmethod
     def sample(

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..backends.twins import compiled_module, compiled_side, numpy_side
 from .base import Profile, Region
 
 #: Constant of the fast inverse approximation (D, slide 41); Unreal ships 2.6.
@@ -416,18 +417,8 @@ class BurleyProfile(Profile):
     def chromatic(self):
         return np.any(self.d[:, 1:] != self.d[:, :1], axis=1)
 
-    def region(self, r0, mat):
-        d = np.take(self.d, mat, axis=0)
-        r0 = np.asarray(r0, dtype=np.float64)[:, None]
-        rmax = d * self.truncate
-        t_hi = tail(np.minimum(r0, rmax), d)
-        t_lo = np.where(d > 0, self._tail_max, 0.0)
-        mass = np.where(d > 0, np.maximum(t_hi - t_lo, 0.0), 0.0)
-        total = 1.0 - self._tail_max
-        gamma = mass / total
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where(mass > 0, gamma / mass, 0.0)
-        return Region(gamma=gamma, weight_scale=scale, lo=t_lo, hi=t_hi)
+    def region(self, r0, mat, backend="numpy"):
+        return burley_region(self, r0, mat, backend=backend)
 
     def sample(self, u, lo, hi, mat, channel):
         t = hi - u * (hi - lo)
@@ -449,3 +440,51 @@ class BurleyProfile(Profile):
 
     def describe(self, slot):
         return {"profile": self.name, "slot": int(slot), "d": self.d[slot].tolist()}
+
+
+@numpy_side("burley_region")
+def burley_region(
+    profile: BurleyProfile, r0: np.ndarray, mat: np.ndarray, backend: str = "numpy"
+) -> Region:
+    """:meth:`BurleyProfile.region`: γ, weight scale and sampling bounds of P pixels.
+
+    Parameters
+    ----------
+    profile : BurleyProfile
+    r0 : (P,) float, inner radius per pixel (scene units); mat : (P,) int, compact slot
+    backend : one of core.params.BACKENDS; where it resolves to numba one compiled pass
+        computes the same values (:func:`_burley_region_compiled`; NumPy's passes over
+        (P, 3) float64 arrays were half of preparing a frame's Geometry)
+
+    Returns
+    -------
+    Region with (P, 3) float64 arrays
+    """
+    d = np.take(profile.d, mat, axis=0)
+    r0 = np.asarray(r0, dtype=np.float64)[:, None]
+    rmax = d * profile.truncate
+    t_hi = tail(np.minimum(r0, rmax), d)
+    t_lo = np.where(d > 0, profile._tail_max, 0.0)
+    mass = np.where(d > 0, np.maximum(t_hi - t_lo, 0.0), 0.0)
+    total = 1.0 - profile._tail_max
+    gamma = mass / total
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(mass > 0, gamma / mass, 0.0)
+    return Region(gamma=gamma, weight_scale=scale, lo=t_lo, hi=t_hi)
+
+
+def _plain_burley(profile, *_args, **_kwargs) -> bool:
+    """The compiled region is Burley's own: a subclass may define the region otherwise."""
+    return type(profile) is BurleyProfile
+
+
+@compiled_side("burley_region", supports=_plain_burley)
+def _burley_region_compiled(
+    profile: BurleyProfile, r0: np.ndarray, mat: np.ndarray, backend: str = "numpy"
+) -> Region:
+    """:func:`burley_region` in one compiled pass (libm's ``exp``: where NumPy has its
+    own AVX-512 ``exp`` the two may differ in the last bit)."""
+    gamma, scale, lo, hi = compiled_module("region").burley_region(
+        r0, mat, profile.d, profile.truncate, profile._tail_max
+    )
+    return Region(gamma=gamma, weight_scale=scale, lo=lo, hi=hi)

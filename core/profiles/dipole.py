@@ -515,7 +515,7 @@ class DipoleProfile(Profile):
             return np.zeros((3, r.size))
         return t.pdf_at(r.reshape(-1) / self.unit[slot]) / self.unit[slot]
 
-    def region(self, r0, mat):
+    def region(self, r0, mat, backend="numpy"):
         r0 = np.asarray(r0, dtype=np.float64)
         mat = np.asarray(mat)
         xi0 = np.ones((r0.size, 3))

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry import compact_materials
+from ..frame import compact_materials
 from ..params import ParameterError, param, validate
 from . import presets
 from .artist import ArtistProfile, from_radial
@@ -333,7 +333,7 @@ def build_profile(
 def frame_profile(frame, params, choice: ProfileChoice | None = None) -> Profile:
     """The profile of a frame's materials (after ``choice``) over their compact slots.
 
-    Slots are numbered as :func:`core.geometry.compact_slots` numbers them, so
+    Slots are numbered as :func:`core.frame.compact_slots` numbers them, so
     the profile's tables grow with the number of materials, not with the
     largest Material Index.
     """
@@ -434,7 +434,7 @@ class MixedProfile(Profile):
     def chromatic(self):
         return self._pick("chromatic")
 
-    def region(self, r0, mat):
+    def region(self, r0, mat, backend="numpy"):
         r0 = np.asarray(r0, dtype=np.float64)
         mat = np.asarray(mat)
         n = r0.size

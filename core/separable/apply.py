@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import Geometry, prepare
-from ..mc.backend import compiled
+from ..backends.twins import compiled_module, compiled_side, numpy_side
+from ..geometry import Geometry, geometry_of
 from ..params import SeparableParams
 from ..profiles.base import Profile
-from ..sampling.sequence import pcg3d
+from ..sampling.qmc import pcg3d
 from .kernels import SlotKernel, build_kernels
 
 _INV_2_32 = 1.0 / 2**32
@@ -272,7 +272,7 @@ def _compiled_pass(
     linear: bool = False,
 ) -> tuple[np.ndarray, int]:
     """:func:`_one_pass` as one compiled loop per pixel
-    (:func:`core.mc.estimator_numba.separable_pass`): the same float32 operations per
+    (:func:`core.backends.numba.separable.separable_pass`): the same float32 operations per
     read and tap, in the same order, so the same values (the exponential follow's
     ``exp`` comes from another library: within float32 rounding).
 
@@ -283,8 +283,7 @@ def _compiled_pass(
     out : (P, 3J) float32, sorted order (the transpose of _one_pass's)
     fallback : as _one_pass
     """
-    from ..mc.estimator_numba import separable_pass
-
+    separable_pass = compiled_module("separable").separable_pass
     coord, base, stride, size, scale, first, span = _axis(px, shape, axis)
     present = np.zeros(tab.width.shape[0], bool)
     present[px.slots] = True
@@ -296,7 +295,7 @@ def _compiled_pass(
     # counting its fall-backs once.
     reps = weights.shape[2] // src.shape[1]
     fallback = 0
-    # Every argument in the one form the warm-up compiles (estimator_numba.warm_up).
+    # Every argument in the one form core.backends.numba.compile compiles.
     i64 = np.int64
     args = (
         np.ascontiguousarray(px.index, i64),
@@ -325,7 +324,7 @@ def _compiled_pass(
         bool(linear),
         out,
     )
-    # One build per follow rule (estimator_numba.separable_pass).
+    # One build per follow rule (core.backends.numba.separable.separable_pass).
     one_pass = separable_pass(depth_slope is None)
     src = np.ascontiguousarray(src, np.float32)
     for c0 in range(0, src.shape[1], 3):
@@ -355,10 +354,10 @@ def apply(
     kernels : per-slot kernels (built if None; pass them to reuse across frames)
     seed : int, jitter stream (with the frame number)
     depth_slope : float, bilateral tolerance of ``follow="slope"`` (SSSParams.depth_slope)
-    geom : Geometry from :func:`cvsss.core.geometry.prepare`, optional
-    backend : one of core.params.BACKENDS: the passes' implementation (NumPy's
-        :func:`_one_pass`, or :func:`_compiled_pass` where it resolves to numba; the
-        same values, see there)
+    geom : Geometry from :func:`cvsss.core.geometry.geometry_of`, optional
+    backend : one of core.params.BACKENDS: the passes' implementation (the
+        ``separable_pass`` twin: NumPy's :func:`_one_pass`, or :func:`_compiled_pass`
+        where it resolves to numba; the same values, see there)
 
     Returns
     -------
@@ -372,7 +371,7 @@ def apply(
     if kernels is None:
         kernels = build_kernels(profile, params)
     if geom is None:
-        geom = prepare(frame, profile)
+        geom = geometry_of(frame, profile)
     if geom.size == 0:
         return (
             geom,
@@ -389,46 +388,16 @@ def apply(
     tab = _stack(kernels, profile.n_slots, params)
     # The sorted pixels depend on the Geometry alone (a still scene's frames share it).
     px = geom.memo("separable_pixels", lambda: _pixels(geom))
-    hgt, wid = geom.shape
-    fast = compiled(backend)
-    lighting = frame.lighting.reshape(-1, 3)
-    if fast:  # pixel-major: a read's channels share a cache line
-        light = np.ascontiguousarray(lighting, dtype=np.float32)
-    else:
-        light = np.ascontiguousarray(lighting.T, dtype=np.float32)
-    depth_flat = frame.depth.reshape(-1).astype(np.float32)
-    mat_flat = geom.slots
     key = None
     if params.jitter:
         key = ((int(frame.number) ^ int(seed)) & 0xFFFFFFF) * 2
     t0 = time.perf_counter()
     slope = depth_slope if params.follow == "slope" else None
     linear = params.filter == "linear"
-    one_pass = _compiled_pass if fast else _one_pass
-    first, fb1 = one_pass(
-        light, px, geom.shape, depth_flat, mat_flat, tab, tab.h, 0, key, slope, linear
-    )
-    if fast:
-        inter = np.zeros((hgt * wid, 3 * j), np.float32)
-        inter[px.index] = first
-    else:
-        inter = np.zeros((3 * j, hgt * wid), np.float32)
-        inter[:, px.index] = first
-    second, fb2 = one_pass(
-        inter,
-        px,
-        geom.shape,
-        depth_flat,
-        mat_flat,
-        tab,
-        tab.v,
-        1,
-        None if key is None else key + 1,
-        slope,
-        linear,
-    )
-    if fast:
-        second = second.T
+    second, fallback = _two_passes(
+        frame.lighting, frame.depth, geom.slots, px, geom.shape, tab, j, key, slope, linear,
+        backend=backend,
+    )  # fmt: skip
     pass_ms = (time.perf_counter() - t0) * 1e3
     shaded = np.empty((geom.size, 3))
     shaded[px.order] = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64).T
@@ -443,8 +412,70 @@ def apply(
         {
             "pass_ms": pass_ms,
             "reads_per_pixel": 2 * j * params.taps * per_read,
-            "fallback_share": (fb1 + fb2) / tap_reads if tap_reads else 0.0,
-            "fallback": fb1 + fb2,
+            "fallback_share": fallback / tap_reads if tap_reads else 0.0,
+            "fallback": fallback,
             "tap_reads": tap_reads,
         },
     )
+
+
+@numpy_side("separable_pass")
+def _two_passes(
+    lighting: np.ndarray,
+    depth: np.ndarray,
+    slots: np.ndarray,
+    px: _Pixels,
+    shape: tuple[int, int],
+    tab: _Tables,
+    terms: int,
+    key: int | None,
+    slope: float | None,
+    linear: bool,
+    backend: str = "numpy",
+) -> tuple[np.ndarray, int]:
+    """The horizontal then the vertical pass of every kernel term (NumPy).
+
+    Parameters
+    ----------
+    lighting : (H, W, 3) float32, B (linear); depth : (H, W) float, scene units
+    slots : (H·W,) int32 compact slots; px : the sorted SSS pixels (:func:`_pixels`)
+    shape : (H, W); tab : the stacked kernels (:func:`_stack`); terms : J
+    key : jitter key of the horizontal pass (the vertical one's is key + 1), or None
+    slope : depth slope of the slope follow, None for the exponential follow
+    linear : read between the two nearest pixels
+
+    Returns
+    -------
+    second : (3J, P) float32, the vertical pass's output in sorted order
+    fallback : int, zero-weight reads of both passes
+    """
+    hgt, wid = shape
+    light = np.ascontiguousarray(lighting.reshape(-1, 3).T, dtype=np.float32)
+    depth_flat = depth.reshape(-1).astype(np.float32)
+    first, fb1 = _one_pass(light, px, shape, depth_flat, slots, tab, tab.h, 0, key, slope, linear)
+    inter = np.zeros((3 * terms, hgt * wid), np.float32)
+    inter[:, px.index] = first
+    vkey = None if key is None else key + 1
+    second, fb2 = _one_pass(inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear)
+    return second, fb1 + fb2
+
+
+@compiled_side("separable_pass")
+def _two_passes_compiled(
+    lighting, depth, slots, px, shape, tab, terms, key, slope, linear, backend="numpy"
+) -> tuple[np.ndarray, int]:
+    """:func:`_two_passes` with :func:`_compiled_pass`, on pixel-major images (a read's
+    channels share a cache line): the same values."""
+    hgt, wid = shape
+    light = np.ascontiguousarray(lighting.reshape(-1, 3), dtype=np.float32)
+    depth_flat = depth.reshape(-1).astype(np.float32)
+    first, fb1 = _compiled_pass(
+        light, px, shape, depth_flat, slots, tab, tab.h, 0, key, slope, linear
+    )
+    inter = np.zeros((hgt * wid, 3 * terms), np.float32)
+    inter[px.index] = first
+    vkey = None if key is None else key + 1
+    second, fb2 = _compiled_pass(
+        inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear
+    )
+    return second.T, fb1 + fb2

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..frame import Frame
 from ..geometry import GeometryCache
-from ..methods import Method, MethodOptions
+from ..method import Method, MethodOptions
 from ..params import SSSParams
 from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
@@ -63,7 +63,7 @@ class SeparableProcessor:
             seed=self.params.seed,
             depth_slope=self.params.depth_slope,
             # A still scene (only the lights change) reuses the last frame's Geometry.
-            geom=self._geometry.prepare(frame, profile, backend=self.params.backend),
+            geom=self._geometry.get(frame, profile, backend=self.params.backend),
             backend=self.params.backend,
         )
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)

@@ -17,7 +17,7 @@ distant part f̄ = γ·mean_k B(p ± r_k) with r_k drawn on [r0, r_max] through
 the exact inverse (``radius_from_tail``) and a random sign — the 1D version
 of the screen-space estimator, B read from the texel the sample lands in
 (clamped at the surface's ends). Samples come from the shifted R2 sequence of
-:mod:`cvsss.core.sampling.sequence` (first dimension: radius, second: sign),
+:mod:`cvsss.core.sampling.qmc` (first dimension: radius, second: sign),
 hashed per (pixel, stream, frame ⊕ seed); all configurations and both
 lightings use the same sample at a given (pixel, stream, frame, index), so
 their differences are not sampling noise.
@@ -49,7 +49,7 @@ from ..mc.adaptive import sample_counts, update_history
 from ..mc.control_variates import cv_coefficient, emcm_step
 from ..params import SSSParams
 from ..profiles.burley import radius_from_tail, tail
-from ..sampling.sequence import pixel_offsets, r2_points
+from ..sampling.qmc import pixel_offsets, r2_points
 
 #: Tracked-value configurations → labels.
 CONFIGS = {

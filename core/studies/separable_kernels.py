@@ -28,7 +28,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..eval.metrics import psnr
-from ..methods import MethodOptions, make_processor
+from ..method import MethodOptions
+from ..methods import make_processor
 from ..params import KERNELS, TAP_COUNTS, SeparableParams, SSSParams
 from ..profiles import presets
 from ..profiles.dipole import DipoleProfile

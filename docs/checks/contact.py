@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from cvsss.core.eval.metrics import edge_kinds
+from cvsss.core.eval.rows import ground_truth_columns
 from cvsss.core.io.exr import read_combined, read_frame
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
-from cvsss.core.run import ground_truth_columns
 
 VARIANTS = {
     "no objects": None,

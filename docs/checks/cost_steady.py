@@ -5,7 +5,7 @@
 about 49 spp; a few frames later ``as_ccv`` takes about 15. A pixel costs the
 compiled kernel a fixed part besides its samples (``kernel_per_pixel.py``),
 so the ratio to the gather roofline grows as the counts fall. This script
-runs the same cost section (:func:`core.eval.bench.section_cost`: interleaved
+runs the same cost section (:func:`core.bench.section_cost`: interleaved
 configurations, the gather timed right after each frame) over FRAMES frames
 on the backends given and prints, per size and method, the mean spp, ns per
 sample, the paired gather and their ratio (median over frames 2…FRAMES).
@@ -16,7 +16,7 @@ Run from the repo root:
 
 import argparse
 
-from cvsss.core.eval.bench import BenchConfig, section_cost
+from cvsss.core.bench import BenchConfig, section_cost
 
 
 def main() -> None:

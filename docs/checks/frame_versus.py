@@ -85,7 +85,7 @@ class PrepareEachFrame:
     def __init__(self, prepare) -> None:
         self._prepare = prepare
 
-    def prepare(self, frame, profile, **options):
+    def geometry_of(self, frame, profile, **options):
         return self._prepare(frame, profile, **options)
 
 
@@ -101,7 +101,7 @@ def compare(modules: dict, size: tuple[int, int], calls: int) -> None:
     state = proc.state()
 
     # Each revision's geometry step: its GeometryCache where it has one (the same frame
-    # repeats, so it reuses the Geometry as a still scene's frames do), else prepare().
+    # repeats, so it reuses the Geometry as a still scene's frames do), else geometry_of().
     caches = {
         id(mods): mods[0].GeometryCache()
         if hasattr(mods[0], "GeometryCache")

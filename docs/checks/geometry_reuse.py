@@ -1,4 +1,4 @@
-"""What reusing a still scene's Geometry saves: prepare() against a cache hit, and whole frames.
+"""What reusing a still scene's Geometry saves: geometry_of() against a cache hit, and whole frames.
 
 A lighting animation over a still scene renders the same Depth, Material Index
 and Object Index passes every frame; :class:`core.geometry.GeometryCache`
@@ -6,10 +6,10 @@ then reuses the last frame's Geometry and takes only the direct light and the
 Subsurface Weight from the new frame. On the bench's flash frame
 (``core.synthetic``), for each size, this prints:
 
-- ``prepare()`` with the compiled backend (the processors' options: surface
+- ``geometry_of()`` with the compiled backend (the processors' options: surface
   distances, core pixels), a cache hit (the next frame of the sequence, whose
   passes equal the cached ones: the comparison plus the lighting part) and a
-  miss (one depth value changed: the comparison, ``prepare()`` and the copy of
+  miss (one depth value changed: the comparison, ``geometry_of()`` and the copy of
   the passes), minimum and median of ``--calls`` interleaved calls, each after
   the same set-up (a cache holding the previous frame);
 - a steady ``as_ccv`` frame (frame 7, history from frames 1–6) through the
@@ -43,8 +43,8 @@ OPTIONS = {"surface_distance": True, "core_only": True, "margin": 0, "backend": 
 class Fresh(geometry.GeometryCache):
     """Prepares every frame anew (the processors before the cache)."""
 
-    def prepare(self, frame, profile, **options):
-        return geometry.prepare(frame, profile, **options)
+    def geometry_of(self, frame, profile, **options):
+        return geometry.geometry_of(frame, profile, **options)
 
 
 def stats(times: list[float]) -> str:
@@ -64,12 +64,12 @@ def prepare_calls(w: int, h: int, calls: int) -> None:
         # The same set-up before each timed call: a cache holding the previous frame.
         for name, frame in (("prepare", moved), ("hit", frames[1]), ("miss", moved)):
             cache = geometry.GeometryCache()
-            cache.prepare(frames[0], profile, **OPTIONS)
+            cache.get(frames[0], profile, **OPTIONS)
             t = time.perf_counter()
             if name == "prepare":
-                geometry.prepare(frame, profile, **OPTIONS)
+                geometry.geometry_of(frame, profile, **OPTIONS)
             else:
-                cache.prepare(frame, profile, **OPTIONS)
+                cache.get(frame, profile, **OPTIONS)
             times[name].append(time.perf_counter() - t)
             assert cache.hits == (name == "hit")
     for name, v in times.items():

@@ -10,7 +10,7 @@ tangent plane), the loads of its values and the start of each stage loop for
 its samples. It is work, not waiting on reads: batches that take their samples
 from consecutive pixels (a pixel's lone sample beside 31 others) cost as much
 per pixel (see docs/performance.md, *Backends*). ``b`` is printed next to the
-bench's gather roofline (``core.eval.bench.gather_ns_per_sample``, timed in
+bench's gather roofline (``core.bench.gather_ns_per_sample``, timed in
 the same run with the 32-spp counts). Run from the repo root:
 
     .venv/bin/python docs/checks/kernel_per_pixel.py [WxH] [--calls N]
@@ -22,8 +22,8 @@ import numba
 import numpy as np
 from shared import timed_kernel
 
-from cvsss.core.eval.bench import gather_ns_per_sample
-from cvsss.core.geometry import prepare
+from cvsss.core.bench import gather_ns_per_sample
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator_numba
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import ProfileCache
@@ -41,7 +41,7 @@ def main() -> None:
     params = SSSParams()
     frame = scene_frame("flash", 2, w, h)
     profile = ProfileCache(params, None).get(frame)
-    geom = prepare(frame, profile, surface_distance=True, backend="numba")
+    geom = geometry_of(frame, profile, surface_distance=True, backend="numba")
     active = np.flatnonzero(geom.gamma_sum > 0)
     threads = numba.get_num_threads()
     try:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsss.core.geometry import prepare
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator_numba
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.params import SSSParams
@@ -64,7 +64,7 @@ def main() -> None:
     params = SSSParams()
     frame = scene_frame("flash", 2, w, h)
     profile = ProfileCache(params, None).get(frame)
-    geom = prepare(frame, profile, surface_distance=True, backend="numba")
+    geom = geometry_of(frame, profile, surface_distance=True, backend="numba")
     rng = np.random.default_rng(0)
     counts = rng.integers(spp // 2, spp * 3 // 2 + 1, geom.size)
     counts[geom.gamma_max < params.eps_u] = 0

@@ -6,7 +6,7 @@ kernel). This script says how far each mode is from that: on a steady
 ``as_ccv`` frame of the bench's flash sequence (``core.synthetic``; frame 3,
 history from frames 1–2, its sample counts), it times the NumPy
 ``estimate_distant`` in the ``cycles``, ``surface`` and ``planar`` modes and the
-bench's roofline (``core.eval.bench.gather_ns_per_sample``: the same number of
+bench's roofline (``core.bench.gather_ns_per_sample``: the same number of
 random local gathers with ``np.take``), calls interleaved, so a slow spell of a
 shared machine hits all of them. Prints ns per sample (minimum and median of
 the calls) and the ratio of each mode's minimum to the gather's. Run from the
@@ -21,8 +21,8 @@ import time
 import numpy as np
 from shared import steady
 
-from cvsss.core.eval.bench import gather_ns_per_sample
-from cvsss.core.geometry import prepare
+from cvsss.core.bench import gather_ns_per_sample
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator
 from cvsss.core.params import SSSParams
 
@@ -31,8 +31,8 @@ def measure(size: tuple[int, int], calls: int) -> None:
     w, h = size
     params = SSSParams(backend="numpy")
     frame, profile, result = steady(size, params)
-    surface = prepare(frame, profile, surface_distance=True, core_only=True)
-    planar = prepare(frame, profile, surface_distance=False, core_only=True)
+    surface = geometry_of(frame, profile, surface_distance=True, core_only=True)
+    planar = geometry_of(frame, profile, surface_distance=False, core_only=True)
     counts = result.counts.reshape(-1)[surface.index].astype(np.int64)
     total = int(counts.sum())
     modes = {"cycles": (surface, True), "surface": (surface, False), "planar": (planar, False)}

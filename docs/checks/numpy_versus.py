@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 from shared import steady
 
-from cvsss.core.geometry import prepare
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator
-from cvsss.core.methods import MethodOptions
+from cvsss.core.method import MethodOptions
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles import PROFILE_NAMES, ProfileChoice
 
@@ -69,8 +69,8 @@ def compare(modules: dict, size: tuple[int, int], calls: int, kind: str, timed: 
     presets = ((1, "skin1"), (2, "marble")) if kind == "dipole" else ()
     choice = ProfileChoice(profile=kind, slot_materials=presets)
     frame, profile, result = steady(size, params, MethodOptions(profile=choice))
-    surface = prepare(frame, profile, surface_distance=True, core_only=True)
-    planar = prepare(frame, profile, surface_distance=False, core_only=True)
+    surface = geometry_of(frame, profile, surface_distance=True, core_only=True)
+    planar = geometry_of(frame, profile, surface_distance=False, core_only=True)
     counts = result.counts.reshape(-1)[surface.index].astype(np.int64)
     total = int(counts.sum())
     common = dict(frame=frame.number, seed=params.seed, depth_slope=params.depth_slope)

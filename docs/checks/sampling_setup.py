@@ -33,7 +33,7 @@ def measure(w: int, h: int, calls: int) -> None:
     frame, p = frames[6], proc.params
     profile = proc.profiles.get(frame)
     options = dict(surface_distance=True, core_only=True, margin=0, backend="numba")
-    geom = proc._geometry.prepare(frame, profile, **options)
+    geom = proc._geometry.get(frame, profile, **options)
     counts, _ = proc._counts(geom, proc._aligned_history(frame))
     assert geom.reused, "frame 7 of a still scene reuses the Geometry"
     with timed_kernel() as in_kernel:

@@ -20,7 +20,8 @@ import numpy as np
 
 import cvsss
 from cvsss.core.mc import estimator_numba
-from cvsss.core.methods import MethodOptions, make_processor
+from cvsss.core.method import MethodOptions
+from cvsss.core.methods import make_processor
 from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.synthetic import scene_frame
 

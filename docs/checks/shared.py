@@ -15,7 +15,8 @@ import numpy as np
 from cvsss.core.frame import Frame
 from cvsss.core.geometry import Geometry, GeometryCache
 from cvsss.core.mc import estimator_numba
-from cvsss.core.methods import MethodOptions, make_processor
+from cvsss.core.method import MethodOptions
+from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.result import FrameResult
 from cvsss.core.synthetic import scene_frame
@@ -60,7 +61,7 @@ def steady_geometry(
     frame, profile, result = steady(size, params, number=number)
     cache = GeometryCache()
     for _ in range(2):
-        geom = cache.prepare(frame, profile, surface_distance=True, core_only=True, backend="numba")
+        geom = cache.get(frame, profile, surface_distance=True, core_only=True, backend="numba")
     counts = result.counts.reshape(-1)[geom.index].astype(np.int64)
     return frame, profile, geom, counts
 

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from shared import steady
 
-from cvsss.core.geometry import prepare
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator_numba
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.methods import make_processor
@@ -56,7 +56,7 @@ def main() -> None:
     }
     print(f"{numba.get_num_threads()} threads; ms per call (min of {a.calls}), ns per sample")
     for label, frame, profile, image in frames():
-        geom = prepare(frame, profile, surface_distance=True, backend="numba")
+        geom = geometry_of(frame, profile, surface_distance=True, backend="numba")
         counts = image.reshape(-1)[geom.index].astype(np.int32)
         best = dict.fromkeys(ways, np.inf)
         out = {}

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import cvsss
-from cvsss.core.methods import MethodOptions
+from cvsss.core.method import MethodOptions
 from cvsss.core.params import SSSParams
 from cvsss.core.run import RunSpec, run_folder
 

@@ -4,7 +4,7 @@ Properties ▸ Material (whether the material takes part and its Burley shape)."
 import bpy
 from bpy.types import Panel
 
-from ...core.mc import backend as mc_backend
+from ...core.backends import select as mc_backend
 from ...core.methods import METHODS
 from . import materials as sss_materials
 from .native import native_notes

@@ -28,7 +28,8 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
-from ...core.methods import METHODS, MethodOptions, enum_items
+from ...core.method import MethodOptions
+from ...core.methods import METHODS, enum_items
 from ...core.params import MAX_SPP, ParameterError, SeparableParams, SSSParams, specs
 from ...core.profiles import presets
 from ...core.profiles.factory import ProfileChoice

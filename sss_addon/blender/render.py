@@ -46,11 +46,13 @@ from pathlib import Path
 import bpy
 
 from ...core.io.exr import read_combined, read_frame
-from ...core.methods import METHODS, MethodOptions
+from ...core.method import MethodOptions
+from ...core.methods import METHODS
 from ...core.params import SSSParams
 from ...core.result import FrameResult
-from ...core.run import RunSpec, SequenceRun, format_clock
+from ...core.run import RunSpec, SequenceRun
 from .. import precompile
+from ..progress import format_clock, printer
 from . import ground_truth as gt
 from . import materials as sss_materials
 from .console import StdoutFilter
@@ -509,7 +511,7 @@ def run_of(job: Job, write: bool = True, processors=None) -> SequenceRun:
     existing = "overwrite" if job.overwrite else "continue"
     extra = {} if processors is None else {"processors": processors}
     return SequenceRun(
-        job.out, spec, job.frames, existing=existing, write=write, log=job.log, **extra
+        job.out, spec, job.frames, existing=existing, write=write, log=printer(job.log), **extra
     )
 
 

@@ -1,6 +1,6 @@
 """``cvsss bench`` (``make bench``): the run, its memory measurement, files and plots.
 
-The measuring functions are in :mod:`cvsss.core.eval.bench` (what each figure
+The measuring functions are in :mod:`cvsss.core.bench` (what each figure
 means is documented there). This front-end adds what core does not do:
 
 - peak resident memory, one fresh subprocess per configuration
@@ -38,9 +38,13 @@ from typing import Any
 
 import numpy as np
 
-from ...core.eval import bench, quality
+from ...core import bench
+from ...core.backends import cache as numba_cache
+from ...core.backends import select as mc_backend
+from ...core.backends.compile import compile_all
+from ...core.bench.config import ADAPTIVE, MeasureRss
+from ...core.eval import quality
 from ...core.io.atomic import make_folder
-from ...core.mc import backend as mc_backend
 from ...core.methods import make_processor
 from ...core.params import SSSParams
 from ...core.synthetic import scene_frame
@@ -185,7 +189,7 @@ def rss_worker(spec: dict) -> dict:
 
     Run in a fresh subprocess per configuration (``python -m
     cvsss.sss_addon.cli.bench --rss-worker JSON``, ``spec`` one of
-    :func:`cvsss.core.eval.bench.rss_specs`) so configurations do not
+    :func:`cvsss.core.bench.rss_specs`) so configurations do not
     contaminate each other. Reports the peak over the whole process
     (interpreter, inputs, post-process) and, where Linux allows resetting the
     high-water mark, the peak while post-processing with the frame already in
@@ -234,7 +238,7 @@ def _spawn_rss(spec: dict) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def measure_rss(workers: int) -> bench.MeasureRss:
+def measure_rss(workers: int) -> MeasureRss:
     """Measures each spec in its own subprocess, ``workers`` at a time (results in order)."""
 
     def measure(specs: list[dict]) -> list[dict]:
@@ -247,9 +251,9 @@ def measure_rss(workers: int) -> bench.MeasureRss:
 # -- JIT compile time ------------------------------------------------------------------
 _WARM_UP = (
     "import json, time; t0 = time.perf_counter(); "
-    "from cvsss.core.mc import backend; b = backend.resolve('numba'); "
-    "t1 = time.perf_counter(); s = backend.warm_up() if b == 'numba' else None; "
-    "print(json.dumps({'import_s': t1 - t0, 'warm_up_s': s}))"
+    "from cvsss.core.backends import compile, select; b = select.resolve('numba'); "
+    "t1 = time.perf_counter(); s = compile.compile_all() if b == 'numba' else None; "
+    "print(json.dumps({'import_s': t1 - t0, 'compile_s': s}))"
 )
 
 
@@ -282,9 +286,9 @@ def measure_jit() -> dict:
             if proc.returncode != 0:
                 return {**out, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
             res = json.loads(proc.stdout.strip().splitlines()[-1])
-            out[key] = res["warm_up_s"]
+            out[key] = res["compile_s"]
             out.setdefault("import_s", res["import_s"])
-        out["adopted"] = adopt_compiled(Path(cache), Path(mc_backend.__file__).resolve().parent)
+        out["adopted"] = adopt_compiled(Path(cache), numba_cache.SOURCES)
     return out
 
 
@@ -444,7 +448,7 @@ def run_bench(
         # timed: a kernel's first use would otherwise compile it inside a timed frame (on a
         # clean clone the frames section's first as_ccv_t frame at 1280x720 read 8.1 s).
         t0 = time.perf_counter()
-        mc_backend.warm_up()
+        compile_all()
         result["jit"]["in_process_s"] = time.perf_counter() - t0
         if log:
             log(f"[{time.perf_counter() - start:7.1f} s] kernels ready in this process")
@@ -654,7 +658,7 @@ def _plot_pareto_backends(plt: Any, par: dict, path: Path) -> Path:
 def _plot_quality(plt: Any, par: dict, path: Path) -> Path:
     cal = par["calibration"]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for method in bench.ADAPTIVE:
+    for method in ADAPTIVE:
         for fam in cal["methods"].get(method, {}).get("families", []):
             bm = fam["fixed"].get("beta_min")
             style = {8: "-", 4: "--", 2: ":"}.get(bm, "-.")

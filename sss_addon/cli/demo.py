@@ -39,15 +39,16 @@ from pathlib import Path
 
 import numpy as np
 
+from ...core.backends import select as mc_backend
 from ...core.eval.metrics import median3
 from ...core.io.atomic import make_folder, write_text
 from ...core.io.exr import write_passes
-from ...core.mc import backend as mc_backend
-from ...core.methods import MethodOptions
+from ...core.method import MethodOptions
 from ...core.params import SSSParams
-from ...core.run import RunSpec, format_clock, run_folder
+from ...core.run import RunSpec, run_folder
 from ...core.synthetic import sequence
 from ..precompile import before_first_frame
+from ..progress import format_clock, progress_text
 from . import report as plots
 from .truth import (
     TruthPlan,
@@ -806,9 +807,9 @@ def run_demo(
                 )
             )
 
-        def progress(text: str, scene=scene) -> None:
-            if " as_ccv:" in text:  # one line per frame, with elapsed and ETA
-                log(stamp(f"{scene}: {text}"))
+        def progress(event, scene=scene) -> None:
+            if event.kind == "frame" and event.method == "as_ccv":  # a line per frame, with ETA
+                log(stamp(f"{scene}: {progress_text(event)}"))
 
         ground_truth = scene_dir / "ground_truth" if truth is not None else None
         rows = run_folder(
@@ -824,7 +825,7 @@ def run_demo(
             existing="continue",
             log=progress if log else None,
             ground_truth=ground_truth,
-            prepare=before_first_frame(params.backend, DEMO_METHODS, log),
+            before_first=before_first_frame(params.backend, DEMO_METHODS, log),
         )
         summary[scene] = summarize(rows)
         if truth is not None:
@@ -919,7 +920,7 @@ def truth_extras(
             RunSpec(truth.methods, params, options),
             existing="continue",
             ground_truth=scene_dir / "ground_truth",
-            prepare=before_first_frame(params.backend, truth.methods, log),
+            before_first=before_first_frame(params.backend, truth.methods, log),
         )
     extra["equal_time"] = equal_time_rows(scene_dir, frames, truth, samples)
     extra["quality"] = quality_against_truth(scene_dir, params, options, log)
@@ -973,7 +974,7 @@ def quality_against_truth(
             RunSpec(("as_ccv",), params.replace(target_variance=sigma), options),
             existing="continue",
             ground_truth=ground_truth,
-            prepare=before_first_frame(params.backend, ("as_ccv",), log),
+            before_first=before_first_frame(params.backend, ("as_ccv",), log),
         )
         rows.append(row(sigma, metrics))
     own = scene_dir / "metrics.csv"

@@ -44,6 +44,7 @@ if __package__ in (None, ""):
 
 from ...core.methods import METHODS
 from ...core.params import ParameterError, SSSParams
+from ..progress import printer
 from .params import (
     UserError,
     add_arguments,
@@ -486,7 +487,13 @@ def _post(args: argparse.Namespace) -> int:
         from ..precompile import before_first_frame
 
         kernels = before_first_frame(spec.params.backend, spec.order, common["log"])
-        run_folder(args.passes, args.out, spec, prepare=kernels, **common)
+        run_folder(
+            args.passes,
+            args.out,
+            spec,
+            before_first=kernels,
+            **{**common, "log": printer(common["log"])},
+        )
     return 0
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import MISSING
 
-from ...core.methods import MethodOptions
+from ...core.method import MethodOptions
 from ...core.params import SeparableParams, SSSParams, flag_of, specs
 from ...core.profiles.factory import ProfileChoice
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.eval.color import srgb_encode
+from ...core.color import srgb_encode
 from ...core.eval.metrics import median3
 from ...core.io.exr import read_result
 

@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ...core.eval.bench import BenchConfig, size_key
+from ...core.bench import BenchConfig, size_key
 from ...core.eval.compare import output_differences
 from ...core.io.exr import write_passes
 from ...core.params import SSSParams

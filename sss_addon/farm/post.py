@@ -16,10 +16,11 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
-from ...core.methods import MethodOptions
+from ...core.method import MethodOptions
 from ...core.params import SSSParams
 from ...core.run import RunSpec, run_folder
 from ...core.tiling import TiledProcessor, TileSession
+from ..progress import printer
 from .cluster import open_cluster
 
 #: Default tile side in pixels (``--tile``).
@@ -65,4 +66,6 @@ def post_distributed(
     warn = kwargs.get("warn")
     with open_cluster(workers, scheduler, log=log) as executor:
         make = tiled_processors(executor, tile, log=warn or log)
-        return run_folder(passes, out, spec, log=log, processors=make, lookahead=True, **kwargs)
+        return run_folder(
+            passes, out, spec, log=printer(log), processors=make, lookahead=True, **kwargs
+        )

@@ -134,9 +134,9 @@ def main(zip_path: str, work: str, numba: bool = True) -> None:
     report["outputs"] = sorted(os.listdir(s.output_dir))
     report["images"] = sorted(img.name for img in bpy.data.images if img.name.startswith("SSS "))
     # The render went through the compiled kernel, imported from the bundled wheel.
-    backend = sys.modules[MOD + ".core.mc.backend"]
+    backend = sys.modules[MOD + ".core.backends.select"]
     report["backend"] = backend.describe(s.backend)
-    kernel = sys.modules.get(MOD + ".core.mc.estimator_numba")
+    kernel = sys.modules.get(MOD + ".core.backends.numba.sampling")
     report["kernel_signatures"] = (
         0
         if kernel is None

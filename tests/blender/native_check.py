@@ -61,8 +61,8 @@ def background_report() -> dict | None:
     if process is None:
         return None
     code = process.wait(600)  # it goes on after the job's kernels; the stamp comes last
-    backend = sys.modules[package + ".core.mc.backend"]
-    kernels = sys.modules[package + ".core.mc.estimator_numba"]
+    cache = sys.modules[package + ".core.backends.cache"]
+    kernels = sys.modules[package + ".core.backends.numba.sampling"]
     builds = {}
     for name in ("pixel_sums", "pixel_sums_serial"):
         stats = getattr(kernels, name).stats
@@ -71,7 +71,7 @@ def background_report() -> dict | None:
         "args": process.args[3:],  # package name, pixels
         "package": package,
         "exit": code,
-        "stamped": backend.kernels_cached(),
+        "stamped": cache.is_complete(),
         "builds": builds,
     }
 

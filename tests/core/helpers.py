@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from cvsss.core.geometry import prepare
+from cvsss.core.geometry import geometry_of
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import frame_profile
@@ -43,7 +43,7 @@ def shade(
     shaded : (P, 3) float64, L = (1 − γ)·B + Î per SSS pixel
     """
     prof = frame_profile(frame, SSSParams()) if profile is None else profile
-    geom = prepare(frame, prof, surface_distance=surface)
+    geom = geometry_of(frame, prof, surface_distance=surface)
     m = np.broadcast_to(np.asarray(counts), (geom.size,)).astype(np.int64)
     est = estimate_distant(
         geom,

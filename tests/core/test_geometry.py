@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cvsss.core.geometry import compact_slots
+from cvsss.core.frame import compact_slots
 
 
 @pytest.mark.parametrize(
@@ -95,9 +95,9 @@ def _lit_frames(n: int = 3):
 @pytest.mark.parametrize("backend", ["numpy", "auto"])
 def test_geometry_cache_reuses_a_still_scene_bit_for_bit(backend):
     """Frames whose geometry passes do not change (the flash sequence) are served from
-    the cache: every field equals prepare()'s of that frame, bit for bit, including the
+    the cache: every field equals geometry_of()'s of that frame, bit for bit, including the
     lighting-dependent direct part and the Subsurface Weight, which change each frame."""
-    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.geometry import GeometryCache, geometry_of
     from cvsss.core.params import SSSParams
     from cvsss.core.profiles.factory import ProfileCache
 
@@ -108,8 +108,8 @@ def test_geometry_cache_reuses_a_still_scene_bit_for_bit(backend):
     directs, images = [], []
     for f in frames:
         profile = profiles.get(f)
-        geom = cache.prepare(f, profile, **options)
-        fresh = prepare(f, profile, **options)
+        geom = cache.get(f, profile, **options)
+        fresh = geometry_of(f, profile, **options)
         assert _geometry_fields_equal(geom, fresh)
         directs.append(geom.direct)
         # The γ and mask images: made once, read-only, handed on to the hits.
@@ -126,11 +126,11 @@ def test_geometry_cache_reuses_a_still_scene_bit_for_bit(backend):
 def test_geometry_cache_prepares_anew_when_geometry_changes():
     """A changed pass (one depth value, one Material Index, one
     Object Index), camera, crop, material table, profile or option is a miss: the
-    result is prepare()'s of the new frame."""
+    result is geometry_of()'s of the new frame."""
     import dataclasses
 
     from cvsss.core.frame import Crop
-    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.geometry import GeometryCache, geometry_of
     from cvsss.core.params import SSSParams
     from cvsss.core.profiles.factory import ProfileCache
 
@@ -161,35 +161,35 @@ def test_geometry_cache_prepares_anew_when_geometry_changes():
     ]
     for frame, options in cases:
         cache = GeometryCache()
-        cache.prepare(base, profile, surface_distance=True)
+        cache.get(base, profile, surface_distance=True)
         prof = profiles.get(frame)
-        geom = cache.prepare(frame, prof, **{"surface_distance": True, **options})
+        geom = cache.get(frame, prof, **{"surface_distance": True, **options})
         assert cache.hits == 0
         assert _geometry_fields_equal(
-            geom, prepare(frame, prof, **{"surface_distance": True, **options})
+            geom, geometry_of(frame, prof, **{"surface_distance": True, **options})
         )
     # The same materials with a new profile object (another ProfileCache) is a miss too.
     cache = GeometryCache()
-    cache.prepare(base, profile)
-    cache.prepare(base, ProfileCache(SSSParams()).get(base))
+    cache.get(base, profile)
+    cache.get(base, ProfileCache(SSSParams()).get(base))
     assert cache.hits == 0
 
 
 def test_geometry_cache_keeps_its_own_copy_of_the_passes():
     """Writing into the previous frame's depth array after it was prepared (a reader
     that reuses its buffers) does not make the next frame a false hit."""
-    from cvsss.core.geometry import GeometryCache, prepare
+    from cvsss.core.geometry import GeometryCache, geometry_of
     from cvsss.core.params import SSSParams
     from cvsss.core.profiles.factory import ProfileCache
 
     frame = _lit_frames(1)[0]
     profile = ProfileCache(SSSParams()).get(frame)
     cache = GeometryCache()
-    cache.prepare(frame, profile)
+    cache.get(frame, profile)
     frame.depth[5:9, 5:40] = 2.5  # the buffer now holds the next frame's depth
-    geom = cache.prepare(frame, profile)
+    geom = cache.get(frame, profile)
     assert cache.hits == 0
-    assert _geometry_fields_equal(geom, prepare(frame, profile))
+    assert _geometry_fields_equal(geom, geometry_of(frame, profile))
 
 
 def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
@@ -198,7 +198,7 @@ def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
     import dataclasses
 
     from cvsss.core.frame import Crop
-    from cvsss.core.geometry import GeometryCache, _entry_bytes, prepare
+    from cvsss.core.geometry import GeometryCache, _entry_bytes, geometry_of
     from cvsss.core.params import SSSParams
     from cvsss.core.profiles.factory import ProfileCache
 
@@ -211,7 +211,7 @@ def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
     ]
     cache = GeometryCache()
     for f in crops + crops:
-        cache.prepare(f, profile, surface_distance=True)
+        cache.get(f, profile, surface_distance=True)
     assert cache.hits == 3 and len(cache._entries) == 3
     sizes = [_entry_bytes(e) for e in cache._entries.values()]
     assert all(n > base.depth.nbytes for n in sizes)
@@ -219,18 +219,18 @@ def test_geometry_cache_bounds_its_entries_and_keeps_the_newest():
     cache = GeometryCache()
     cache.MAX_BYTES = sum(sorted(sizes)[1:])  # room for any two, not three
     for f in crops + crops:
-        cache.prepare(f, profile, surface_distance=True)
+        cache.get(f, profile, surface_distance=True)
     assert cache.hits == 0 and len(cache._entries) == 2  # each came back after eviction
     cache.MAX_ENTRIES = 1
-    cache.prepare(crops[0], profile, surface_distance=True)
+    cache.get(crops[0], profile, surface_distance=True)
     assert len(cache._entries) == 1
 
     cache = GeometryCache()
     cache.MAX_BYTES = 1  # smaller than any entry: the newest stays
     for _ in range(3):
-        geom = cache.prepare(base, profile, surface_distance=True)
+        geom = cache.get(base, profile, surface_distance=True)
     assert cache.hits == 2 and len(cache._entries) == 1
-    assert _geometry_fields_equal(geom, prepare(base, profile, surface_distance=True))
+    assert _geometry_fields_equal(geom, geometry_of(base, profile, surface_distance=True))
 
 
 def test_light_scale_from_the_geometry_equals_the_frames_own():
@@ -240,7 +240,7 @@ def test_light_scale_from_the_geometry_equals_the_frames_own():
     out by both."""
     import dataclasses
 
-    from cvsss.core.geometry import light_scale, prepare
+    from cvsss.core.geometry import geometry_of, light_scale
     from cvsss.core.params import SSSParams
     from cvsss.core.profiles.factory import ProfileCache
     from cvsss.core.synthetic import scene_frame
@@ -253,7 +253,7 @@ def test_light_scale_from_the_geometry_equals_the_frames_own():
     depth[-5:, 30:] = np.inf  # background
     f = dataclasses.replace(f, material=material, depth=depth)
     profile = ProfileCache(SSSParams()).get(f)
-    geom = prepare(f, profile)
+    geom = geometry_of(f, profile)
     assert 0 < geom.size < material.size
     own = light_scale(f, profile)
     from_geom = light_scale(f, profile, geom.at(f.lighting).astype(np.float64))

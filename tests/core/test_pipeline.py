@@ -69,7 +69,7 @@ def test_reused_geometry_gives_the_same_frames(method, backend):
     sequence whose geometry is still, then moves, then is still again gives the same
     frames, bit for bit, as one that prepares every frame anew; the still frames hit.
     The compiled kernel keeps its texels in the reused Geometry and relights them
-    (core.mc.estimator_numba._TEXELS): the light flashes from frame to frame."""
+    (core.mc.estimator._TEXELS): the light flashes from frame to frame."""
     import dataclasses
 
     from cvsss.core import geometry
@@ -80,8 +80,8 @@ def test_reused_geometry_gives_the_same_frames(method, backend):
     frames[5] = dataclasses.replace(frames[5], depth=frames[4].depth.copy())
 
     class Fresh(geometry.GeometryCache):
-        def prepare(self, frame, profile, **options):
-            return geometry.prepare(frame, profile, **options)
+        def geometry_of(self, frame, profile, **options):
+            return geometry.geometry_of(frame, profile, **options)
 
     params = SSSParams(backend=backend)
     cached, fresh = make_processor(method, params), make_processor(method, params)

@@ -52,7 +52,7 @@ from cvsss.core.camera import Camera
 from cvsss.core.frame import Frame, MaterialSpec
 from cvsss.core.mc import adaptive, control_variates
 from cvsss.core.mc.history import History
-from cvsss.core.mc.processor import TRACK_LIMIT
+from cvsss.core.mc.update import TRACK_LIMIT
 
 ADAPTIVE = ("as", "as_ocv", "as_ccv")
 ALL_METHODS = ("as", "as_ocv", "as_ccv", "fixed", "reference", "none")

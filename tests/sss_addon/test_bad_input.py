@@ -462,7 +462,7 @@ def test_out_of_memory_is_one_message(passes, tmp_path, capfd, monkeypatch):
     def exhausted(*_args, **_kwargs):
         raise MemoryError("Unable to allocate 142. PiB")
 
-    monkeypatch.setattr("cvsss.core.run.write_result", exhausted)
+    monkeypatch.setattr("cvsss.core.run.driver.write_result", exhausted)
     code, err = run_main(post(passes, tmp_path / "out"), capfd)
     assert_one_error(code, err, "not enough memory (Unable to allocate 142. PiB)")
 

@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from cvsss.core.eval import bench as core_bench
+from cvsss.core.bench import config, results
 from cvsss.core.eval import quality
 from cvsss.core.mc.history import History
 from cvsss.core.studies import cv1d, fig2
@@ -51,10 +51,10 @@ def test_bench_flags_select_the_configuration():
     args = _args("bench", "--quick", "--sections", "pareto, cost", "--no-plots")
     cfg = bench.config_from_args(args)
     assert cfg.sections == ("pareto", "cost")
-    assert cfg.cost_sizes == core_bench.QUICK.cost_sizes
+    assert cfg.cost_sizes == config.QUICK.cost_sizes
     assert args.no_plots and not args.write_calibration and args.rss_worker is None
     full = bench.config_from_args(_args("bench"))
-    assert full == core_bench.BenchConfig()
+    assert full == config.BenchConfig()
 
 
 @pytest.mark.parametrize("sections", ["speed", "cost,speed", ","])
@@ -181,7 +181,7 @@ def quick_run(tmp_path_factory):
         mp.setattr(quality, "CALIBRATION_PATH", shipped)
         lines: list[str] = []
         result = bench.run_bench(
-            tmp / "out", core_bench.QUICK, write_calibration=True, log=lines.append
+            tmp / "out", config.QUICK, write_calibration=True, log=lines.append
         )
     return tmp / "out", shipped, result, lines
 
@@ -189,7 +189,7 @@ def quick_run(tmp_path_factory):
 def test_quick_run_writes_bench_json(quick_run):
     out, _, result, _ = quick_run
     text = (out / "bench.json").read_text(encoding="utf-8")
-    assert text == core_bench.to_json(result)
+    assert text == results.to_json(result)
     data = json.loads(text)
     assert list(data) == [
         "version",
@@ -206,7 +206,7 @@ def test_quick_run_writes_bench_json(quick_run):
         "resolution_scaling",
         "pareto",
         "workers",
-        "peak_rss_mb",  # runs last (core.eval.bench.SECTIONS)
+        "peak_rss_mb",  # runs last (core.bench.config.SECTIONS)
         "backend_default",
         "cost_method",
         "ns_per_sample",
@@ -217,7 +217,7 @@ def test_quick_run_writes_bench_json(quick_run):
         "plots",
     ]
     assert data["command"] == bench.REGENERATE
-    assert data["config"] == json.loads(json.dumps(core_bench.QUICK.to_dict()))
+    assert data["config"] == json.loads(json.dumps(config.QUICK.to_dict()))
     assert data["environment"]["cpus"] == data["targets"]["bench_wall_s"]["cpus"]
     assert set(data["targets"]) == {
         "ns_per_sample_vs_gather_numpy",

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cvsss.core.mc import backend as mc_backend
-from cvsss.core.mc import estimator_numba
+from cvsss.core.backends import cache as numba_cache
 from cvsss.sss_addon import precompile
 
 ANNOUNCE = "compiling the numba kernels (first use on this machine, about a minute)…"
@@ -60,7 +59,7 @@ def test_a_long_compile_is_announced_then_reported(no_compile, slow_compile, mon
     match = REPORT.match(lines[1])
     assert match, lines[1]
     assert 0.55 <= float(match[1]) <= returned - began + 0.05
-    assert match[2] == str(mc_backend.cache_location())
+    assert match[2] == str(numba_cache.location())
 
 
 def test_a_short_one_is_not_announced(no_compile, slow_compile):
@@ -89,7 +88,9 @@ def test_real_kernels_are_prepared(no_compile, monkeypatch):
     lines = []
     precompile.prepare("numba", MC, 48 * 32, lines.append)
     assert REPORT.match(lines[-1]), lines
-    assert estimator_numba.pixel_sums_serial.signatures  # the build 48×32 frames take
+    from cvsss.core.backends.numba import sampling
+
+    assert sampling.pixel_sums_serial.signatures  # the build 48×32 frames take
     result = make_processor("as_ccv", SSSParams(backend="numba")).process(
         scene_frame("flash", 1, 48, 32)
     )
@@ -105,16 +106,16 @@ def _child(tmp_path, monkeypatch, body: str):
     script.write_text("import json, sys, time\n" + body + "\n")
     monkeypatch.setattr(precompile, "CHILD", script)
     monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "1")
-    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: False)
+    monkeypatch.setattr(numba_cache, "is_complete", lambda: False)
 
 
 def test_background_compile_starts_only_where_there_is_work(no_compile, tmp_path, monkeypatch):
     _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
     assert not precompile.start_background("numpy", MC)
     assert not precompile.start_background("numba", ("none", "separable"))
-    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: True)
+    monkeypatch.setattr(numba_cache, "is_complete", lambda: True)
     assert not precompile.start_background("numba", MC)
-    monkeypatch.setattr(mc_backend, "kernels_cached", lambda: False)
+    monkeypatch.setattr(numba_cache, "is_complete", lambda: False)
     monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "0")
     assert not precompile.start_background("numba", MC)
     assert not precompile._background
@@ -168,7 +169,7 @@ def test_prepare_waits_for_the_background_compile_then_loads(no_compile, tmp_pat
     monkeypatch.setattr(precompile, "NOTICE", 0.1)
     seen = []
     monkeypatch.setattr(
-        mc_backend, "warm_up", lambda pixels=None: seen.append(done.exists()) or 0.0
+        precompile, "compile_all", lambda pixels=None: seen.append(done.exists()) or 0.0
     )
     lines = []
     assert precompile.start_background("numba", MC, lines.append)
@@ -224,7 +225,7 @@ def test_prepare_waits_only_for_the_kernels_of_its_frame_size(no_compile, tmp_pa
         'print(json.dumps({"ready": 30.5}), flush=True); time.sleep(60); '
         'print(json.dumps({"seconds": 44.0}))',
     )
-    monkeypatch.setattr(mc_backend, "warm_up", lambda pixels=None: 0.0)
+    monkeypatch.setattr(precompile, "compile_all", lambda pixels=None: 0.0)
     lines = []
     assert precompile.start_background("numba", MC, None, pixels=640 * 360)
     assert precompile._background["process"].args[-1] == str(640 * 360)

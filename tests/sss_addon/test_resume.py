@@ -205,7 +205,7 @@ def test_interrupt_exits_130_and_points_to_resume(passes, tmp_path, monkeypatch,
     def interrupt(*_args, **_kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("cvsss.core.run.write_result", interrupt)
+    monkeypatch.setattr("cvsss.core.run.driver.write_result", interrupt)
     assert cli.main(post_argv(passes, tmp_path / "out")) == 130
     assert "--resume" in capsys.readouterr().err
 
@@ -221,14 +221,14 @@ def test_interrupt_inside_a_compiled_kernel_is_an_interrupt(passes, tmp_path, mo
         except KeyboardInterrupt:
             raise SystemError("CPUDispatcher returned a result with an exception set") from None
 
-    monkeypatch.setattr("cvsss.core.run.write_result", interrupt)
+    monkeypatch.setattr("cvsss.core.run.driver.write_result", interrupt)
     assert cli.main(post_argv(passes, tmp_path / "out")) == 130
     assert "--resume" in capsys.readouterr().err
 
     def broken(*_args, **_kwargs):
         raise SystemError("not an interrupt")
 
-    monkeypatch.setattr("cvsss.core.run.write_result", broken)
+    monkeypatch.setattr("cvsss.core.run.driver.write_result", broken)
     with pytest.raises(SystemError, match="not an interrupt"):
         cli.main(post_argv(passes, tmp_path / "out2"))
 
