@@ -30,7 +30,7 @@ class _NoNumba:
 
     def find_spec(self, name, path=None, target=None):
         if name.split(".")[0] in ("numba", "llvmlite"):
-            raise ImportError(f"{name} is not installed (--numpy-only)")
+            raise ModuleNotFoundError(f"No module named {name!r} (--numpy-only)", name=name)
         return None
 
 

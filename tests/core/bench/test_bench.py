@@ -281,6 +281,7 @@ def test_affine_detection_refuses_unrelated_lighting_or_weights(rng):
 
 # -- the smoke run (QUICK, every section, memory measured by a fake) ---------------------------
 def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
+    pytest.importorskip("numba")  # both backends side by side
     r, _ = smoke
     rows = r["cost"]["sizes"]["32x18"]
     assert set(rows) == set(config.COST_METHODS)
@@ -312,6 +313,7 @@ def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
 
 
 def test_smoke_frame_time_per_backend_size_and_method(smoke):
+    pytest.importorskip("numba")  # both backends side by side
     ft = smoke[0]["frame_time_ms"]
     assert ft["backend_default"] == "numba" and ft["frames"] == config.QUICK.frame_frames
     for b in ("numpy", "numba"):
@@ -322,6 +324,7 @@ def test_smoke_frame_time_per_backend_size_and_method(smoke):
 
 
 def test_smoke_pareto_per_backend_same_samples_other_times(smoke):
+    pytest.importorskip("numba")  # both backends side by side
     par = smoke[0]["pareto"]
     by = par["by_backend"]
     assert par["backend_default"] == "numba" and set(by) == {"numpy", "numba"}
