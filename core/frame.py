@@ -33,7 +33,7 @@ MAX_MOTION = 1e7
 #: pass) and object index it stores.
 MAX_PASS_INDEX = 2**15 - 1
 
-#: Object indices are clipped to [0, this] (the compiled kernel keeps slot and object
+#: Object indices are clipped to [0, this] (the compiled sampling pass keeps slot and object
 #: in one float32, exact below 2**24).
 MAX_OBJECTS = 2**15
 

@@ -149,7 +149,7 @@ def surface(frame: Frame, backend: str = "numpy") -> Surface:
         facing = np.sum(normal * view, axis=-1)
     normal = np.where((facing > 0)[..., None], -normal, normal)
     normal = np.where(known[..., None], normal, -view).reshape(-1, 3).astype(np.float32)
-    # z from x and y in float32, as the compiled kernel rebuilds it from its texel (which
+    # z from x and y in float32, as the compiled sampling pass rebuilds it from its texel (which
     # keeps x, y and z's sign), so both backends see the same normals.
     xy = normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1]
     normal[:, 2] = np.copysign(

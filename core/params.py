@@ -482,7 +482,7 @@ class SSSParams(_Params):
     backend: str = param(
         "auto",
         label="Backend",
-        help="Implementation of the Monte Carlo sampling step: the compiled numba kernel when "
+        help="Implementation of the Monte Carlo sampling step: the compiled numba passes when "
         "numba imports, else NumPy (auto); NumPy; or numba (falls back to NumPy with a warning "
         "where numba is missing). Both take the same samples and agree to float32 rounding",
         choices=BACKENDS,

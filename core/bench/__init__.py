@@ -19,7 +19,7 @@ run on this machine, so it means something on any machine:
     fastest of the configurations' gathers.
 ``backend_default``, ``by_backend``
     The figures above are measured for every sampling backend that imports
-    here (``SSSParams.backend``: NumPy, and the compiled numba kernel), side
+    here (``SSSParams.backend``: NumPy, and the compiled numba passes), side
     by side in one interleaved run; ``ns_per_sample`` and
     ``gather_ns_per_sample`` are ``{backend: {size: ns}}``. The other sections
     run on ``backend_default``, what ``backend = "auto"`` picks.

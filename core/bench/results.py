@@ -25,7 +25,7 @@ def evaluate_targets(result: dict) -> dict:
     t: dict[str, dict] = {}
     cost = result.get("cost")
     if cost:
-        # Issue 15: the compiled kernel within 4x of the gather roofline, NumPy within 15x.
+        # Issue 15: the compiled sampling pass within 4x of the gather roofline, NumPy within 15x.
         limits = {"numba": 4.0, "numpy": 15.0}
         for b, sizes in cost.get("by_backend", {"": cost["sizes"]}).items():
             ratios = {k: v["as_ccv"]["ratio_to_gather"] for k, v in sizes.items()}

@@ -882,7 +882,7 @@ def disk_frame(normal: np.ndarray) -> np.ndarray:
 
     ``T = normalize((1, 1, 1) × N)`` (``(−1, 1, 1) × N`` when the components of N
     are all equal), ``B = N × T``, in float32, in the order the compiled
-    kernel computes them.
+    sampling pass computes them.
     """
     n = np.asarray(normal, dtype=np.float32)
     nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
@@ -936,7 +936,7 @@ def _disk_gain(dx, dy, dz, q, normal_cm, pix: Pixels, a: int, c, weighed) -> np.
     total = weight[0] + weight[1]
     total += weight[2]
     # G = Σ_a w_a·(|Δ|/ρ_a)/total from q_a = max(ρ_a², ρ_min²)/|Δ|² with two divisions
-    # (the compiled kernel's operations, in its order).
+    # (the compiled pass's operations, in its order).
     s01 = sq[0] + sq[1]
     l2 = s01 + sq[2]
     lo2 = np.repeat(pix.rho_min[a : a + c.size], c)
@@ -1035,7 +1035,7 @@ def _distant_sums_compiled(
     (:func:`core.backends.numba.sampling.pixel_sums`).
 
     Adds each active pixel's mean weighted difference to its row of ``distant``
-    ((G, 3) float64, in place; see pixel_sums): in the kernel, where a pixel's
+    ((G, 3) float64, in place; see pixel_sums): in the pass, where a pixel's
     sums are at hand, instead of dividing and scattering (P, 3) sums afterwards
     (1.2 ms at 640×360, 5.7 ms through NumPy's fancy indexing when some pixels
     take no samples, against ~60 ms for the samples). With ``start`` (every

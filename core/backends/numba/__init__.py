@@ -1,6 +1,6 @@
 """The compiled kernels, one module per domain (numba, parallel over pixels).
 
-Every kernel takes arrays and numbers only: what it needs of the algorithm's
+Every pass takes arrays and numbers only: what it needs of the algorithm's
 objects (Geometry, profile tables, parameters) is unpacked by the compiled side
 of its twin, beside the NumPy side in the algorithm's module
 (:mod:`core.backends.twins`). Importing this package imports numba; the rest of
@@ -18,4 +18,4 @@ Compiled code is cached on disk (numba's ``cache=True``; :mod:`core.backends.cac
 chooses where).
 """
 
-import numba  # noqa: F401  (fails here, not inside a kernel, where numba is missing)
+import numba  # noqa: F401  (fails here, not inside a pass, where numba is missing)

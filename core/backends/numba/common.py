@@ -1,7 +1,7 @@
 """Helpers the compiled kernels of several domains share: integer hashing, NumPy's
 ``nan_to_num`` and the float32 store rule of one value, Rec. 709 weights.
 
-Every helper is inlined into the kernel that calls it (``inline="always"``).
+Every helper is inlined into the pass that calls it (``inline="always"``).
 """
 
 from __future__ import annotations

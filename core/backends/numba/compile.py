@@ -1,4 +1,4 @@
-"""Compiling every kernel: each runs once on one pixel, in the argument types the
+"""Compiling every pass: each runs once on one pixel, in the argument types the
 algorithm's compiled sides pass (a call in other types would compile another
 specialisation).
 """
@@ -19,12 +19,12 @@ from .temporal import MULTIPLICATIVE, neighbour_table, neighbourhood_pass, reuse
 
 
 def compile_all(pixels: int | None = None) -> None:
-    """Run every kernel once on one pixel: compiles it, or loads it from the disk cache.
+    """Run every pass once on one pixel: compiles it, or loads it from the disk cache.
 
-    With ``pixels`` (the frame's, H·W) only the build of the sampling kernel that
+    With ``pixels`` (the frame's, H·W) only the build of the sampling pass that
     frames of that size take (:func:`build_for`, counting every pixel as an SSS pixel
     with no samples); the other kernels all the same. The two builds of the sampling
-    kernel are most of a cold compile's time (docs/performance.md).
+    pass are most of a cold compile's time (docs/performance.md).
     """
     builds = (pixel_sums, pixel_sums_serial)
     if pixels is not None:

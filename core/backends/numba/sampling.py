@@ -50,7 +50,7 @@ from .common import (
     _pcg3d_xy,
 )
 
-#: Geometry modes of the kernel.
+#: Geometry modes of the sampling pass.
 PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
 #: Samples that go through each stage together (see pixel_sums): enough independent
 #: work to overlap the latencies of the reads, square roots and divisions (8 measured
@@ -84,7 +84,7 @@ _ROWS = 15
 #: docs/checks/kernel_versus.py at 34 spp and at 4-8 spp; presumably the task's
 #: buffer allocations and loop starts spread over more pixels); 128 and 512 alike.
 PIXELS_PER_TASK = 256
-#: Side of the square pixel tiles the kernel visits the pixels in (see tile_order).
+#: Side of the square pixel tiles the pass visits the pixels in (see tile_order).
 TILE = 32
 # numba does integer arithmetic in 64 bits: the R2 step wraps modulo 2**32 by the mask.
 _A = np.uint64(R2_STEP_U32[0])
@@ -213,7 +213,7 @@ def _pixel_sums(
     start : bool, instead set row ``active[i]`` to γ_c·B_c(p) (float64) plus that mean,
         as estimate_distant's NumPy γ·B then ``+=`` (its entries may be uninitialised)
     threads : int, the threads the parallel build runs on (``numba.get_num_threads()``;
-        the tasks are dealt out over them; read here, the kernel could not be cached)
+        the tasks are dealt out over them; read here, the pass could not be cached)
 
     Returns
     -------
@@ -766,16 +766,16 @@ _serial = types.FunctionType(_pixel_sums.__code__, _pixel_sums.__globals__, "pix
 _serial.__qualname__ = "pixel_sums_serial"
 _serial.__doc__ = _pixel_sums.__doc__
 pixel_sums_serial = numba.njit(cache=True, nogil=True, error_model="numpy")(_serial)
-#: What a pixel costs the kernel besides its samples, in samples: 206 ns per pixel
+#: What a pixel costs the pass besides its samples, in samples: 206 ns per pixel
 #: against 25-37 ns per sample on one thread (docs/checks/kernel_per_pixel.py).
 PIXEL_SAMPLES = 8
-#: Below this much work (samples, plus PIXEL_SAMPLES per pixel) the serial kernel runs.
+#: Below this much work (samples, plus PIXEL_SAMPLES per pixel) the serial build runs.
 PARALLEL_MIN_SAMPLES = 1 << 16
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def texels(light, depth, area, normal, slots, surface):
-    """(8N,) float32 texels of the kernel (see pixel_sums), built in parallel."""
+    """(8N,) float32 texels of the pass (see pixel_sums), built in parallel."""
     n = depth.shape[0]
     out = np.empty(8 * n, np.float32)
     for i in numba.prange(n):
