@@ -3,9 +3,9 @@
 
 
 def _modules():
-    from . import demo, native, sequence
+    from . import apply_on_render, demo, sequence
 
-    return (sequence, native, demo)
+    return (sequence, apply_on_render, demo)
 
 
 def register():

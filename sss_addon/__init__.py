@@ -8,11 +8,11 @@ by :func:`register`.
 
 def _modules():
     from .. import operators
-    from .blender import native, panels, properties
+    from .blender import apply_on_render, panels, properties
 
     # Registration order: properties before the render handlers, operators and panels
     # that use them.
-    return (properties, native, operators, panels)
+    return (properties, apply_on_render, operators, panels)
 
 
 def _console_log(on: bool) -> None:

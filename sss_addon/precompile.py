@@ -19,7 +19,7 @@ The compile runs on a thread only so that the caller can time it out and
 speak; the caller waits for it, doing nothing else. Nothing may run beside it:
 compiling while Blender rendered (to hide the minute behind the first frame's
 render) crashed the ``bpy`` module with a segmentation fault inside LLVM's
-module creation in 3 of 10 runs of ``tests/blender/native_check.py`` (Apply on
+module creation in 3 of 10 runs of ``tests/blender/apply_on_render_check.py`` (Apply on
 Render with a warm-up frame, into an empty cache), and numba's ``workqueue``
 threading layer aborts the process when two threads launch parallel regions
 at once.

@@ -548,7 +548,7 @@ _internal = 0
 def internal_render() -> Iterator[None]:
     """Mark the renders inside the block as the add-on's own.
 
-    The Apply on Render handlers (native.py) leave these renders alone: the
+    The Apply on Render handlers (apply_on_render/) leave these renders alone: the
     pass, ground-truth, denoise, warm-up and delivery renders are not the
     user's.
     """

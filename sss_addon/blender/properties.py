@@ -244,7 +244,7 @@ class SSSSettings(PropertyGroup):
         precision=1,
     )
 
-    # -- Blender's own render (native.py) --------------------------------------------------
+    # -- Blender's own render (apply_on_render/) --------------------------------------------
     apply_on_render: BoolProperty(
         name="Apply on Render",
         description=(
