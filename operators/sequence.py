@@ -17,7 +17,7 @@ from ..core.mc.backend import describe as describe_backend
 from ..core.params import ParameterError
 from ..sss_addon import precompile
 from ..sss_addon.blender import render
-from ..sss_addon.blender.passes import RenderError
+from ..sss_addon.blender.errors import RenderError
 
 #: Problems the user can fix: reported without a traceback.
 USER_ERRORS = (

@@ -54,9 +54,9 @@ from .. import precompile
 from . import ground_truth as gt
 from . import materials as sss_materials
 from .console import StdoutFilter
+from .errors import RenderError
 from .passes import (
     PassSetup,
-    RenderError,
     engine_identifier,
     frame_done,
     output_size,

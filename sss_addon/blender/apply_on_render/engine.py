@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 import bpy
 import numpy as np
 
-from ..passes import internal_render
+from ..internal_renders import internal_render
 
 #: Identifier of :class:`ResultEngine`.
 ENGINE = "CVSSS_RESULT"

@@ -1,7 +1,7 @@
 """Blender's render handlers that drive Apply on Render, and the UI's timer.
 
 Every handler is ``@persistent`` (it stays across file loads) and leaves the
-add-on's own renders alone (``passes.rendering_internally``). What
+add-on's own renders alone (``internal_renders.rendering_internally``). What
 each does is told in the package's doc; the work is the
 :class:`.session.Session`'s. :func:`register` adds the handlers and, in the UI,
 the timer (:func:`_poll`) that starts ``sss.finish_render`` once Blender's
@@ -16,7 +16,8 @@ import threading
 import bpy
 from bpy.app.handlers import persistent
 
-from ..passes import RenderError, rendering_internally
+from ..errors import RenderError
+from ..internal_renders import rendering_internally
 from .engine import ENGINE, refuse
 from .session import Session, active_session, forget_history, log, start_session
 

@@ -11,7 +11,8 @@ with the user's scene.
 
 from __future__ import annotations
 
-from ..passes import RenderError, SceneSetup
+from ..errors import RenderError
+from ..passes import SceneSetup
 from .engine import ENGINE
 
 #: Engines whose renders Apply on Render turns into pass renders (Blender id -> cvsss name).

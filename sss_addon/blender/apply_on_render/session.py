@@ -32,10 +32,10 @@ from ....core.run import FrameStream, RunSpec
 from ... import precompile
 from .. import materials as sss_materials
 from ..console import StdoutFilter
+from ..errors import RenderError
 from ..images import show_result
 from ..passes import (
     PassSetup,
-    RenderError,
     finish_pass_file,
     output_size,
     pass_sidecar,
