@@ -49,7 +49,7 @@ def child(
     import cvsss
     from cvsss.core.methods import METHODS
     from cvsss.sss_addon import precompile
-    from cvsss.sss_addon.blender.render import render_sequence
+    from cvsss.sss_addon.blender.standalone import render_sequence
 
     cvsss.register()
     if variant == "loaded":  # what register() does in the UI (bpy here is background)

@@ -641,7 +641,7 @@ def blender_passes(
 
     from ...demo_blend import scenes
     from ..blender import passes as passes_module
-    from ..blender import render
+    from ..blender import render, standalone
 
     scene_dir = Path(scene_dir)
     stamp = {
@@ -659,7 +659,7 @@ def blender_passes(
         "scenes_sha256": hashlib.sha256(Path(scenes.__file__).read_bytes()).hexdigest(),
     }
     _pass_cache(scene_dir, stamp, overwrite, log)
-    unregister = render._ensure_registered()
+    unregister = standalone.ensure_registered()
     try:
         bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene

@@ -491,7 +491,7 @@ def _post(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    """``render``: parse, then call sss_addon.blender.render.render_sequence."""
+    """``render``: parse, then call sss_addon.blender.standalone.render_sequence."""
     frames = parse_frames(args.frames) if args.frames is not None else None
     methods = parse_methods(args.method) if args.method is not None else None
     params = overrides(args, "params")
@@ -523,7 +523,8 @@ def _render(args: argparse.Namespace) -> int:
         ) from None
     if args.blend is None and not bpy.data.filepath:
         raise UserError("no .blend file given and Blender has none open")
-    from ..blender.render import RenderError, render_sequence
+    from ..blender.errors import RenderError
+    from ..blender.standalone import render_sequence
 
     if _distributed(args):
         if args.range_start is not None:

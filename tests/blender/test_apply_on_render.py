@@ -1,6 +1,6 @@
 """Apply on Render: Blender's own render delivers the finished frames (real Cycles, tiny frames).
 
-The reference of every comparison is ``cvsss render`` (render.render_sequence)
+The reference of every comparison is ``cvsss render`` (standalone.render_sequence)
 on the same scene, frames and settings: its linear Composite, written with
 the scene's colour management (Image.save_render) for 8-bit formats.
 """
@@ -17,7 +17,7 @@ bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_result  # noqa: E402
 from cvsss.sss_addon import precompile  # noqa: E402
-from cvsss.sss_addon.blender import apply_on_render, render  # noqa: E402
+from cvsss.sss_addon.blender import apply_on_render, standalone  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render import handlers  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.engine import ResultEngine  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.session import Session, active_session  # noqa: E402
@@ -46,7 +46,7 @@ def _reference(
 ) -> dict[int, np.ndarray]:
     """Composite of ``cvsss render`` per frame (linear RGB, top row first)."""
     method = scene.sss_settings.method
-    render.render_sequence(
+    standalone.render_sequence(
         scene,
         frames,
         out,
