@@ -253,12 +253,12 @@ def test_the_add_on_starts_every_kernel_when_it_loads_in_the_ui_only(
 ):
     """``register()``'s step: in Blender's UI the compile of every kernel starts (no frame
     size); headless (``blender -b``, the bpy module) the render job starts its own."""
-    from cvsss import sss_addon
+    from cvsss.sss_addon import registration
 
     _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
-    assert not sss_addon._compile_on_load(background=True)
+    assert not registration._compile_on_load(background=True)
     assert not precompile._background
-    assert sss_addon._compile_on_load(background=False)
+    assert registration._compile_on_load(background=False)
     process = precompile._background["process"]
-    assert process.args[2:] == [str(Path(sss_addon.__file__).resolve().parents[1]), "cvsss"]
+    assert process.args[2:] == [str(Path(registration.__file__).resolve().parents[1]), "cvsss"]
     assert process.wait(30) == 0
