@@ -28,10 +28,12 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
+from ...core.eval import quality as calibrated
 from ...core.methods import METHODS, MethodOptions, enum_items
 from ...core.params import MAX_SPP, ParameterError, SeparableParams, SSSParams, specs
 from ...core.profiles import presets
 from ...core.profiles.factory import ProfileChoice
+from . import materials as sss_materials
 
 #: Measured materials of the separable-SSS supplementary (seeds/004 section G).
 PRESET_NAMES = presets.names()
@@ -418,7 +420,7 @@ class SSSMaterialSettings(PropertyGroup):
     participates: BoolProperty(
         name="Takes Part",
         description="This material takes part (from the mode and its Principled BSDF)",
-        get=lambda self: _material_participates(self.id_data),
+        get=lambda self: sss_materials.participates(self.id_data),
     )
     use_override: BoolProperty(
         name="Override d",
@@ -459,12 +461,6 @@ class SSSMaterialSettings(PropertyGroup):
         soft_max=1000.0,
         precision=3,
     )
-
-
-def _material_participates(material) -> bool:
-    from .materials import participates
-
-    return participates(material)
 
 
 #: Methods the Quality setting applies to (those with σ0² or N in the calibration).
@@ -516,8 +512,6 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
     method = settings.method if method is None else method
     if quality == "MANUAL" or method not in QUALITY_METHODS:
         return params
-    from ...core.eval import quality as calibrated
-
     target = f"{settings.quality_psnr:g}dB" if quality == "PSNR" else f"{settings.quality_spp:g}spp"
     try:
         return calibrated.apply(params, target, method)[0]

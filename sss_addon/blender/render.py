@@ -54,6 +54,7 @@ from .. import precompile
 from . import ground_truth as gt
 from . import materials as sss_materials
 from .errors import RenderError
+from .images import show_result
 from .passes import (
     PassSetup,
     engine_identifier,
@@ -66,6 +67,7 @@ from .passes import (
     render_view_layer,
     scene_camera,
 )
+from .properties import frame_range, settings_to_options, settings_to_params, store_stats
 
 __all__ = [
     "Job",
@@ -529,13 +531,9 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
         return
     row = next(r for r in done.rows if r["method"] == job.display)
     if job.images:
-        from .images import show_result
-
         show_result(result)
     settings = getattr(job.scene, "sss_settings", None)
     if settings is not None:
-        from .properties import store_stats
-
         value = float(row["psnr_db"]) if row["psnr_db"] else None
         truth = float(row["psnr_gt_db"]) if row.get("psnr_gt_db") else None
         store_stats(
@@ -648,8 +646,6 @@ def job_from_scene(
     ProfileChoice replacing the scene's) and ``"separable"`` (SeparableParams
     fields overriding the scene's).
     """
-    from .properties import frame_range, settings_to_options, settings_to_params
-
     settings = scene.sss_settings
     names = list(methods) if methods else [settings.method]
     if params is None or isinstance(params, Mapping):

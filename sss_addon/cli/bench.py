@@ -40,10 +40,13 @@ import numpy as np
 
 from ...core.eval import bench, quality
 from ...core.io.atomic import make_folder
+from ...core.io.exr import list_frames
 from ...core.mc import backend as mc_backend
 from ...core.methods import make_processor
 from ...core.params import SSSParams
 from ...core.synthetic import scene_frame
+from ..farm.bench import measure_workers
+from ..farm.cluster import FarmError
 from .plots import pyplot, save
 
 #: The command that regenerates out/bench (recorded in bench.json).
@@ -424,8 +427,6 @@ def run_bench(
     """
     cfg = config or bench.BenchConfig()
     if passes is not None:
-        from ...core.io.exr import list_frames
-
         list_frames(passes)  # a missing or empty folder is said now, not after the JIT
     out = Path(out)
     make_folder(out)
@@ -485,12 +486,8 @@ def run_bench(
 
 
 def _measure_workers(cfg: bench.BenchConfig, log, start: float) -> dict:
-    """The ``workers`` section (needs the cvsss[farm] extra; skipped without it)."""
-    try:
-        from ..farm.bench import measure_workers
-        from ..farm.cluster import FarmError
-    except ImportError as exc:  # pragma: no cover - the extension has no farm package
-        return {"skipped": str(exc)}
+    """The ``workers`` section (needs the cvsss[farm] extra; skipped without it: the
+    cluster then raises FarmError)."""
     try:
         return measure_workers(
             cfg,
