@@ -77,7 +77,7 @@ __all__ = [
     "iter_passes",
     "iter_sequence",
     "job_from_scene",
-    "prepare",
+    "make_job",
     "resolve_output_dir",
     "warmup_frames",
 ]
@@ -87,7 +87,7 @@ Log = Callable[[str], None] | None
 
 @dataclass
 class Job:
-    """Validated inputs of a pass render / sequence run (see :func:`prepare`)."""
+    """Validated inputs of a pass render / sequence run (see :func:`make_job`)."""
 
     scene: object
     view_layer: object
@@ -117,7 +117,7 @@ class Job:
     #: farm); they are read, never rendered, and a missing one is an error.
     render_passes: bool = True
     #: False: the frames are processed elsewhere (tiles on a cluster), so this process
-    #: does not prepare the numba kernels (:mod:`.precompile`).
+    #: does not compile the numba kernels (:mod:`.precompile`).
     processed_here: bool = True
 
     @property
@@ -239,7 +239,7 @@ def _check_methods(methods: Sequence[str]) -> list[str]:
     return names
 
 
-def prepare(
+def make_job(
     scene,
     frames: tuple[int, int],
     out: str | os.PathLike,
@@ -521,7 +521,9 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
     truth = read_combined(step.ground_truth) if step.ground_truth is not None else None
     frame = read_frame(step.path, number=step.frame)
     if job.processed_here:
-        precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), job.log)
+        precompile.ensure_compiled(
+            job.params.backend, run.spec.order, math.prod(frame.shape), job.log
+        )
     done = run.step(frame, source=step.path.name, ground_truth=truth)
     step.results, step.rows = done.results, done.rows
     step.post_seconds = time.perf_counter() - start
@@ -564,7 +566,7 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
             job.params.backend, run.spec.order, job.log, math.prod(output_size(job.scene))
         )
     if job.warmup_frames and run.fresh:
-        warm_up(job, run)
+        render_warmup_frames(job, run)
     for step in iter_passes(job, needed=run.pending):
         _post_frame(job, run, step)
         yield step
@@ -581,7 +583,7 @@ def _renders_first(job: Job, run: SequenceRun) -> bool:
     return job.overwrite or not frame_done(job.passes_dir, first, job.denoise_passes)
 
 
-def warm_up(job: Job, run: SequenceRun) -> None:
+def render_warmup_frames(job: Job, run: SequenceRun) -> None:
     """Render (or reuse) the passes of the job's warm-up frames and feed them to ``run``.
 
     Their pass files sit beside the others (``passes/-007.exr`` for frame -7);
@@ -597,7 +599,9 @@ def warm_up(job: Job, run: SequenceRun) -> None:
     for step in iter_passes(warm):
         frame = read_frame(step.path, number=step.frame)
         if job.processed_here:
-            precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), log)
+            precompile.ensure_compiled(
+                job.params.backend, run.spec.order, math.prod(frame.shape), log
+            )
         run.warm_up(frame)
 
 
@@ -659,7 +663,7 @@ def job_from_scene(
             profile=given.get("profile", base.profile),
             separable=base.separable.replace(**given.get("separable", {})),
         )
-    return prepare(
+    return make_job(
         scene,
         frames if frames is not None else frame_range(scene),
         out if out is not None else resolve_output_dir(settings),

@@ -248,11 +248,12 @@ def measure_rss(workers: int) -> bench.MeasureRss:
 
 
 # -- JIT compile time ------------------------------------------------------------------
-_WARM_UP = (
+#: A fresh process imports the backend, then compiles (or loads) its kernels; both timed.
+_COMPILE_IN_FRESH_PROCESS = (
     "import json, time; t0 = time.perf_counter(); "
     "from cvsss.core.mc import backend; b = backend.resolve('numba'); "
     "t1 = time.perf_counter(); s = backend.warm_up() if b == 'numba' else None; "
-    "print(json.dumps({'import_s': t1 - t0, 'warm_up_s': s}))"
+    "print(json.dumps({'import_s': t1 - t0, 'kernels_s': s}))"
 )
 
 
@@ -275,7 +276,7 @@ def measure_jit() -> dict:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         for key in ("compile_s", "cache_load_s"):
             proc = subprocess.run(
-                [sys.executable, "-c", _WARM_UP],
+                [sys.executable, "-c", _COMPILE_IN_FRESH_PROCESS],
                 capture_output=True,
                 text=True,
                 env=env,
@@ -285,7 +286,7 @@ def measure_jit() -> dict:
             if proc.returncode != 0:
                 return {**out, "error": (proc.stderr.strip().splitlines() or ["failed"])[-1]}
             res = json.loads(proc.stdout.strip().splitlines()[-1])
-            out[key] = res["warm_up_s"]
+            out[key] = res["kernels_s"]
             out.setdefault("import_s", res["import_s"])
         out["adopted"] = adopt_compiled(Path(cache), Path(mc_backend.__file__).resolve().parent)
     return out

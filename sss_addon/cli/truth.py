@@ -102,7 +102,7 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
     table = plan.table_frames(frames)
     if not table:
         return
-    job = render.prepare(
+    job = render.make_job(
         scene, (1, max(table)), scene_dir / "denoised", methods=("none",), denoise_passes=True
     )
     for step in render.iter_passes(job):

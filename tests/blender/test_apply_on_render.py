@@ -276,11 +276,11 @@ def test_ui_f12_shows_the_finished_frame(scene, tmp_path, snapshot, ui):
     assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
 
 
-def test_ui_finishing_says_it_prepares_the_kernels_first(
+def test_ui_finishing_says_it_compiles_the_kernels_first(
     scene, tmp_path, snapshot, ui, no_compile, slow_compile
 ):
-    """F12 in the UI where the kernels are not prepared yet: the finishing steps show it in
-    the status bar for one tick, then prepare them (after Blender's render, nothing
+    """F12 in the UI where the kernels are not compiled yet: the finishing steps show it in
+    the status bar for one tick, then compile them (after Blender's render, nothing
     beside) and process the frame."""
     scene_state, state_diff = snapshot
     scene.frame_set(1)
@@ -292,7 +292,7 @@ def test_ui_finishing_says_it_prepares_the_kernels_first(
     rendered = time.perf_counter()
     assert calls == []  # nothing beside Blender's render
     steps = list(active_session().finish_steps())
-    assert steps[0] == precompile.PREPARING and steps[1].startswith("frame 1 "), steps
+    assert steps[0] == precompile.COMPILING_STATUS and steps[1].startswith("frame 1 "), steps
     assert calls == [(48 * 27, "cvsss-compile")] and rendered < no_compile["began"]
     assert state_diff(before, scene_state(scene)) == []
     saved = tmp_path / "render_result.png"

@@ -273,7 +273,7 @@ class Session:
             finally:
                 bpy.data.scenes.remove(copy)
             frame_passes = self._read(frame, path)
-            precompile.prepare(
+            precompile.ensure_compiled(
                 self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), log
             )
             self.stream.warm_up(frame_passes)
@@ -339,7 +339,9 @@ class Session:
                 path, self.scene, self.job.view_layer, sidecar, self.job.denoise_passes
             )
         passes = self._read(frame, path)
-        precompile.prepare(self.job.params.backend, self.job.methods, math.prod(passes.shape), log)
+        precompile.ensure_compiled(
+            self.job.params.backend, self.job.methods, math.prod(passes.shape), log
+        )
         result = self.stream.step(passes)[self.method]
         alpha = read_alpha(path, self.job.view_layer.name)
         rgba = np.empty((*result.composite.shape[:2], 4), np.float32)
@@ -427,10 +429,10 @@ class Session:
             if self.error is None:
                 if self.started and not self.pending and self.still is None and not self.cancelled:
                     self.save_render_result()  # a still rendered without writing (F12)
-                if self.pending and not precompile.prepared(
+                if self.pending and not precompile.compiled_ready(
                     self.job.params.backend, self.job.methods
                 ):
-                    yield precompile.PREPARING  # UI: in the status bar while the next tick waits
+                    yield precompile.COMPILING_STATUS  # UI: in the status bar while the next tick waits
                 if self.stream is None and self.pending:
                     first = self.pending[0][0]
                     if self._open_stream(first):

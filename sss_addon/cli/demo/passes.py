@@ -183,7 +183,7 @@ def blender_passes(
         if hasattr(scene, "eevee"):
             scene.eevee.taa_render_samples = samples
         bpy.ops.wm.save_as_mainfile(filepath=str(scene_dir / f"{scene_name}.blend"), copy=True)
-        job = render.prepare(
+        job = render.make_job(
             scene, (1, frames), scene_dir, methods=("as_ccv",), engine=engine, log=log
         )
         timing = read_timing(scene_dir)
