@@ -424,7 +424,7 @@ class Session:
 
     # -- the end -----------------------------------------------------------------------------
     def finish_steps(self) -> Iterator[str]:
-        """What is left after Blender's render ended, one step at a time (see module doc)."""
+        """What is left after Blender's render ended, one step at a time (see the package doc)."""
         try:
             if self.error is None:
                 if self.started and not self.pending and self.still is None and not self.cancelled:
