@@ -7,12 +7,14 @@ Importing this package does not import bpy.
 
 
 def register():
-    from .sss_addon import register as _register
+    # Imported here: importing cvsss (as core's users and the background compile do)
+    # must not import the Blender glue.
+    from .sss_addon.registration import register as _register
 
     _register()
 
 
 def unregister():
-    from .sss_addon import unregister as _unregister
+    from .sss_addon.registration import unregister as _unregister
 
     _unregister()

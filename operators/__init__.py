@@ -1,18 +1,17 @@
 """Operators (``sss.*``): thin wrappers that build the job from the settings and call
-``sss_addon.render`` (which calls the core)."""
+``sss_addon.blender.render`` (which calls the core)."""
 
+from . import apply_on_render, demo, sequence
 
-def _modules():
-    from . import demo, native, sequence
-
-    return (sequence, native, demo)
+#: Registration order (unregistered in reverse).
+_MODULES = (sequence, apply_on_render, demo)
 
 
 def register():
-    for module in _modules():
+    for module in _MODULES:
         module.register()
 
 
 def unregister():
-    for module in reversed(_modules()):
+    for module in reversed(_MODULES):
         module.unregister()

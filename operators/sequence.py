@@ -17,7 +17,7 @@ from ..core.io.errors import CheckpointError, OutputError, PassError
 from ..core.params import ParameterError
 from ..sss_addon import precompile
 from ..sss_addon.blender import render
-from ..sss_addon.blender.passes import RenderError
+from ..sss_addon.blender.errors import RenderError
 
 #: Problems the user can fix: reported without a traceback.
 USER_ERRORS = (
@@ -91,7 +91,9 @@ class _SteppedOperator:
         wm.modal_handler_add(self)
         wm.progress_begin(0, len(self._job.frames))
         text = f"cvsss: starting {len(self._job.frames)} frame(s)"
-        if self.samples and not precompile.prepared(self._job.params.backend, self._job.methods):
+        if self.samples and not precompile.compiled_ready(
+            self._job.params.backend, self._job.methods
+        ):
             text += " (the first also prepares the numba kernels: a minute on first use)"
         self._status(context, text + ", ESC to cancel")
         return {"RUNNING_MODAL"}

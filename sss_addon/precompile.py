@@ -5,21 +5,21 @@ The first job that samples on the numba backend compiles the kernels
 on the 2-core bench machine); later processes load them from numba's disk
 cache in under a second. Compiled inside the first frame's post-process, that
 minute passed without a word: Blender's UI froze, a headless render printed
-nothing. Now every job calls :func:`prepare` before it processes its first
+nothing. Now every job calls :func:`ensure_compiled` before it processes its first
 frame (``cvsss render``, the operators and Apply on Render directly; ``cvsss
 post`` and ``cvsss demo`` through ``run_folder``'s ``prepare``,
 :func:`before_first_frame`): it compiles (or loads) the kernels the frame size
 needs and, when that takes longer than :data:`NOTICE` seconds, says what is
 happening and then how long it took. In the UI, finishing an Apply on Render
-(``sss.finish_render``) shows :data:`PREPARING` in the status bar on the tick
+(``sss.finish_render``) shows :data:`COMPILING_STATUS` in the status bar on the tick
 before, and the Render Sequence operators say it in their starting status
-(:func:`prepared` tells whether a compile is due).
+(:func:`compiled_ready` tells whether a compile is due).
 
 The compile runs on a thread only so that the caller can time it out and
 speak; the caller waits for it, doing nothing else. Nothing may run beside it:
 compiling while Blender rendered (to hide the minute behind the first frame's
 render) crashed the ``bpy`` module with a segmentation fault inside LLVM's
-module creation in 3 of 10 runs of ``tests/blender/native_check.py`` (Apply on
+module creation in 3 of 10 runs of ``tests/blender/apply_on_render_check.py`` (Apply on
 Render with a warm-up frame, into an empty cache), and numba's ``workqueue``
 threading layer aborts the process when two threads launch parallel regions
 at once.
@@ -30,7 +30,7 @@ is not complete (``core.backends.cache.is_complete``). The add-on starts it
 when it registers in Blender's UI (installed, updated, or Blender opened), so
 that the minute passes while the user works, and every render job starts it
 before Blender renders the first frame, with its frame size, whose build the
-process compiles first. :func:`prepare` then waits until the process has what
+process compiles first. :func:`ensure_compiled` then waits until the process has what
 the job needs (or has failed), and loads it from the cache.
 ``CVSSS_BACKGROUND_COMPILE=0`` turns it off.
 """
@@ -57,8 +57,8 @@ from ..core.methods import METHODS
 #: A compile still running after this many seconds is announced; one that took longer is
 #: reported with its time.
 NOTICE = 2.0
-#: The status bar's text for the tick before :func:`prepare` (UI).
-PREPARING = "preparing the numba kernels (about a minute the first time on this machine)"
+#: The status bar's text for the tick before :func:`ensure_compiled` (UI).
+COMPILING_STATUS = "preparing the numba kernels (about a minute the first time on this machine)"
 
 _state: dict = {}
 #: The script the background compile runs (:func:`start_background`).
@@ -68,22 +68,22 @@ CHILD = Path(__file__).with_name("compile_kernels.py")
 _background: dict = {}
 
 
-def prepared(requested: str, methods: Sequence[str]) -> bool:
+def compiled_ready(requested: str, methods: Sequence[str]) -> bool:
     """Whether frames of ``methods`` on backend ``requested`` can be processed without
-    :func:`prepare` compiling first: NumPy, no method that samples (``none``,
-    ``separable``), or the kernels already prepared in this process."""
-    return _nothing_to_prepare(requested, methods) or not select.compiled(requested)
+    :func:`ensure_compiled` compiling first: NumPy, no method that samples (``none``,
+    ``separable``), or the kernels already compiled (or loaded) in this process."""
+    return _nothing_to_compile(requested, methods) or not select.compiled(requested)
 
 
-def _nothing_to_prepare(requested: str, methods: Sequence[str]) -> bool:
-    """NumPy, no method that samples, or the kernels prepared in this process already
+def _nothing_to_compile(requested: str, methods: Sequence[str]) -> bool:
+    """NumPy, no method that samples, or the kernels compiled in this process already
     (decided without importing numba)."""
     if requested == "numpy" or "ended" in _state:
         return True
     return not any(METHODS[name].monte_carlo for name in methods)
 
 
-def prepare(
+def ensure_compiled(
     requested: str,
     methods: Sequence[str],
     pixels: int | None,
@@ -99,7 +99,7 @@ def prepare(
     then reported with its time; a failure is logged, and the frame then compiles
     on its own and raises the error where it belongs.
     """
-    if prepared(requested, methods):
+    if compiled_ready(requested, methods):
         return
     _wait_for_background(log)
     # numba's threading layer (Blender's TBB inside Blender) starts on this thread, as
@@ -135,9 +135,9 @@ def start_background(
     own (``compile_kernels.py``); whether one started.
 
     ``pixels``: the job's frame size (H·W), whose kernels the process compiles
-    first (:func:`prepare` waits for those only); None: all, in their order.
+    first (:func:`ensure_compiled` waits for those only); None: all, in their order.
     Nothing starts for NumPy or methods that do not sample, when the kernels are
-    prepared in this process, when numba is not installed or the cache is complete
+    compiled in this process, when numba is not installed or the cache is complete
     already (``core.backends.cache.is_complete``; numba is not imported here), when
     this process started one before, or with ``CVSSS_BACKGROUND_COMPILE=0``. ``log``
     is told that it started. Safe beside Blender's render: no LLVM in this process.
@@ -153,7 +153,7 @@ def start_background(
 def _start(requested, methods, log, pixels) -> bool:
     if os.environ.get("CVSSS_BACKGROUND_COMPILE", "1") == "0" or _background:
         return False
-    if _nothing_to_prepare(requested, methods):
+    if _nothing_to_compile(requested, methods):
         return False
     # Without importing numba (Blender's start-up): installed, and not cached yet.
     # numba_cache.is_complete() has pointed NUMBA_CACHE_DIR, which the child inherits, at a
@@ -227,8 +227,8 @@ def stop_background() -> None:
 
 def _wait_for_background(log: Callable[[str], None] | None) -> None:
     """Wait until the background compile, if one runs, has what the job needs (or ended),
-    and report how that went. Once per process: :func:`prepare` calls it only while the
-    kernels are not prepared, and prepares them right after."""
+    and report how that went. Once per process: :func:`ensure_compiled` calls it only while
+    the kernels are not compiled, and compiles (or loads) them right after."""
     ready = _background.get("ready")
     if ready is None:
         return
@@ -260,10 +260,11 @@ def _compile(pixels: int | None) -> None:
 def before_first_frame(
     requested: str, methods: Sequence[str], log: Callable[[str], None] | None
 ) -> Callable:
-    """``core.run.run_folder``'s ``prepare`` (``cvsss post``, ``cvsss demo``): :func:`prepare`
-    for the first frame's size, called with the first frame to be processed."""
+    """``core.run.run_folder``'s ``prepare`` (``cvsss post``, ``cvsss demo``):
+    :func:`ensure_compiled` for the first frame's size, called with the first frame to be
+    processed."""
 
     def kernels(frame) -> None:
-        prepare(requested, methods, math.prod(frame.shape), log)
+        ensure_compiled(requested, methods, math.prod(frame.shape), log)
 
     return kernels

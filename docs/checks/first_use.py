@@ -9,9 +9,9 @@ so that every run compiles the kernels as a fresh install does. Variants:
 ``background``
     as shipped: the job starts ``sss_addon.precompile.start_background`` (a
     low-priority process compiles every kernel while Cycles renders the first
-    frame) and ``prepare`` waits for it before the first post-process;
+    frame) and ``ensure_compiled`` waits for it before the first post-process;
 ``foreground``
-    ``CVSSS_BACKGROUND_COMPILE=0``: ``prepare`` compiles the kernels the frame
+    ``CVSSS_BACKGROUND_COMPILE=0``: ``ensure_compiled`` compiles the kernels the frame
     size needs before the first post-process, in this process;
 ``inline``
     neither: the first post-process compiles what it calls, silently;
@@ -49,7 +49,7 @@ def child(
     import cvsss
     from cvsss.core.methods import METHODS
     from cvsss.sss_addon import precompile
-    from cvsss.sss_addon.blender.render import render_sequence
+    from cvsss.sss_addon.blender.standalone import render_sequence
 
     cvsss.register()
     if variant == "loaded":  # what register() does in the UI (bpy here is background)
@@ -68,7 +68,7 @@ def child(
     if threads:
         scene.render.threads_mode, scene.render.threads = "FIXED", threads
     if variant == "inline":
-        precompile.prepare = lambda requested, methods, pixels, log: None
+        precompile.ensure_compiled = lambda requested, methods, pixels, log: None
     lines: list[tuple[float, str]] = []
     began = time.perf_counter()
 

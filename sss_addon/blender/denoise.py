@@ -42,7 +42,9 @@ import numpy as np
 import OpenEXR
 
 from ...core.io.errors import OutputError
-from .passes import RenderError, internal_render, rewrite_exr
+from .errors import RenderError
+from .exr_rewrite import rewrite_exr
+from .internal_renders import internal_render
 
 #: Passes the post reads and whether each is denoised with the albedo and normal guides.
 DENOISED_PASSES = {

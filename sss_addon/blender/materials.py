@@ -14,7 +14,6 @@ puts every value, link and mute flag back, also on error.
 from __future__ import annotations
 
 import contextlib
-import importlib
 import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -22,6 +21,7 @@ from dataclasses import dataclass, field
 import bpy
 
 from ...core.frame import MaterialSpec
+from ...core.profiles import presets
 from ...core.profiles.burley import blender_shape
 
 WEIGHT = "Subsurface Weight"
@@ -89,14 +89,6 @@ def principled_shape(material) -> tuple[float, float, float] | None:
     return tuple(float(v) for v in blender_shape(tuple(radius), float(scale)))
 
 
-def _presets():
-    """core.profiles.presets when the core ships it (measured materials), else None."""
-    try:
-        return importlib.import_module("...core.profiles.presets", __package__)
-    except ImportError:
-        return None
-
-
 def _mm_per_unit(scene) -> float:
     # Millimetres per scene unit: 1000 for metres, times Blender's unit scale.
     scale_length = float(scene.unit_settings.scale_length) if scene is not None else 1.0
@@ -108,13 +100,10 @@ def preset_shape(material, scene=None) -> tuple[float, float, float] | None:
 
     ``d = ℓ/s(A_tot)`` of the preset (core.profiles.presets) times the
     material's ``preset_scale``, converted with the scene's unit scale.
-    None when no preset is chosen or the core has no preset table.
+    None when no preset is chosen.
     """
     settings = _settings(material)
     if settings is None or settings.preset == "NONE":
-        return None
-    presets = _presets()
-    if presets is None:
         return None
     measured = presets.get(settings.preset.lower())
     d = measured.burley_d(mm_per_unit=_mm_per_unit(scene), scale=float(settings.preset_scale))

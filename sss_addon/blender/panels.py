@@ -7,7 +7,7 @@ from bpy.types import Panel
 from ...core.backends import select as mc_backend
 from ...core.methods import METHODS
 from . import materials as sss_materials
-from .native import native_notes
+from .apply_on_render.scenes import scene_notes
 from .properties import QUALITY_METHODS, param_properties
 
 
@@ -41,7 +41,7 @@ class SSS_PT_render(_RenderPanel, Panel):
         sub.active = s.apply_on_render
         sub.prop(s, "warmup_frames")
         if s.apply_on_render:
-            for text in native_notes(context.scene):
+            for text in scene_notes(context.scene):
                 sub.label(text=text, icon="INFO")
 
         layout.prop(s, "method")

@@ -35,20 +35,18 @@ from pathlib import Path
 
 import bpy
 import numpy as np
-import OpenEXR
 
 from ...core.camera import Camera
 from ...core.frame import MAX_PASS_INDEX, MaterialSpec
 from ...core.io.atomic import commit, temp_path
 from ...core.io.errors import OutputError
-from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN, use_threads
+from ...core.io.exr import BACKGROUND_DEPTH_WRITTEN
 from ...core.io.sidecar import make_sidecar, write_sidecar
 from . import materials as sss_materials
-
-
-class RenderError(ValueError):
-    """A problem with the scene or the settings that the user can fix."""
-
+from .denoise import denoise_pass_file
+from .errors import RenderError
+from .exr_rewrite import rewrite_exr
+from .internal_renders import internal_render
 
 # -- generic RNA snapshots -------------------------------------------------------------
 _SCALAR_TYPES = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
@@ -540,31 +538,6 @@ def pass_changes(passes_dir: Path, frame: int, sidecar: dict) -> list[str]:
     return sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
 
 
-#: Depth of the add-on's own renders in progress (see :func:`internal_render`).
-_internal = 0
-
-
-@contextlib.contextmanager
-def internal_render() -> Iterator[None]:
-    """Mark the renders inside the block as the add-on's own.
-
-    The Apply on Render handlers (native.py) leave these renders alone: the
-    pass, ground-truth, denoise, warm-up and delivery renders are not the
-    user's.
-    """
-    global _internal
-    _internal += 1
-    try:
-        yield
-    finally:
-        _internal -= 1
-
-
-def rendering_internally() -> bool:
-    """Whether a render of the add-on's own is in progress (:func:`internal_render`)."""
-    return _internal > 0
-
-
 def _render_still(scene) -> None:
     """Render the current frame and write ``scene.render.filepath`` (tests replace this)."""
     with internal_render():
@@ -668,28 +641,7 @@ def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool
     if scene.render.engine != "CYCLES":
         aov_to_material_index(path, view_layer.name, sidecar["camera"]["clip_end"])
     if denoise:
-        from .denoise import denoise_pass_file
-
         denoise_pass_file(path, view_layer.name, scene.cycles.samples)
-
-
-def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]) -> None:
-    """Rewrite a multilayer EXR in place, part by part, keeping every header.
-
-    ``edit(part name, {channel: pixels})`` returns the part's new name and
-    channels, or None to drop the part.
-    """
-    use_threads()
-    exr = OpenEXR.File(str(path), separate_channels=True)
-    skip = ("name", "channels", "chunkCount", "version", "type")
-    parts = []
-    for part in exr.parts:
-        header = {k: v for k, v in part.header.items() if k not in skip}
-        channels = {key: channel.pixels for key, channel in part.channels.items()}
-        edited = edit(part.name(), channels)
-        if edited is not None:
-            parts.append(OpenEXR.Part(header, edited[1], edited[0]))
-    OpenEXR.File(parts).write(str(path))
 
 
 def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:

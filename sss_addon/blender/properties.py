@@ -28,11 +28,13 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
+from ...core.eval import quality as calibrated
 from ...core.method import MethodOptions
 from ...core.methods import METHODS, enum_items
 from ...core.params import MAX_SPP, ParameterError, SeparableParams, SSSParams, specs
 from ...core.profiles import presets
 from ...core.profiles.factory import ProfileChoice
+from . import materials as sss_materials
 
 #: Measured materials of the separable-SSS supplementary (seeds/004 section G).
 PRESET_NAMES = presets.names()
@@ -245,7 +247,7 @@ class SSSSettings(PropertyGroup):
         precision=1,
     )
 
-    # -- Blender's own render (native.py) --------------------------------------------------
+    # -- Blender's own render (apply_on_render/) --------------------------------------------
     apply_on_render: BoolProperty(
         name="Apply on Render",
         description=(
@@ -419,7 +421,7 @@ class SSSMaterialSettings(PropertyGroup):
     participates: BoolProperty(
         name="Takes Part",
         description="This material takes part (from the mode and its Principled BSDF)",
-        get=lambda self: _material_participates(self.id_data),
+        get=lambda self: sss_materials.participates(self.id_data),
     )
     use_override: BoolProperty(
         name="Override d",
@@ -460,12 +462,6 @@ class SSSMaterialSettings(PropertyGroup):
         soft_max=1000.0,
         precision=3,
     )
-
-
-def _material_participates(material) -> bool:
-    from .materials import participates
-
-    return participates(material)
 
 
 #: Methods the Quality setting applies to (those with σ0² or N in the calibration).
@@ -517,8 +513,6 @@ def settings_to_params(settings: SSSSettings, method: str | None = None) -> SSSP
     method = settings.method if method is None else method
     if quality == "MANUAL" or method not in QUALITY_METHODS:
         return params
-    from ...core.eval import quality as calibrated
-
     target = f"{settings.quality_psnr:g}dB" if quality == "PSNR" else f"{settings.quality_spp:g}spp"
     try:
         return calibrated.apply(params, target, method)[0]

@@ -1,7 +1,7 @@
 """Render passes and post-process a frame range: the job behind the operators and ``cvsss render``.
 
 Work is a per-frame step generator so the same code runs to the end in
-background mode (:func:`render_sequence`) and one frame per timer tick in the
+background mode (:func:`.standalone.render_sequence`) and one frame per timer tick in the
 UI (the modal operators), where closing the generator cancels cleanly.
 
 Layout under the output folder::
@@ -55,10 +55,10 @@ from .. import precompile
 from ..progress import format_clock, printer
 from . import ground_truth as gt
 from . import materials as sss_materials
-from .console import StdoutFilter
+from .errors import RenderError
+from .images import show_result
 from .passes import (
     PassSetup,
-    RenderError,
     engine_identifier,
     frame_done,
     output_size,
@@ -69,6 +69,7 @@ from .passes import (
     render_view_layer,
     scene_camera,
 )
+from .properties import frame_range, settings_to_options, settings_to_params, store_stats
 
 __all__ = [
     "Job",
@@ -78,8 +79,7 @@ __all__ = [
     "iter_passes",
     "iter_sequence",
     "job_from_scene",
-    "prepare",
-    "render_sequence",
+    "make_job",
     "resolve_output_dir",
     "warmup_frames",
 ]
@@ -89,7 +89,7 @@ Log = Callable[[str], None] | None
 
 @dataclass
 class Job:
-    """Validated inputs of a pass render / sequence run (see :func:`prepare`)."""
+    """Validated inputs of a pass render / sequence run (see :func:`make_job`)."""
 
     scene: object
     view_layer: object
@@ -119,7 +119,7 @@ class Job:
     #: farm); they are read, never rendered, and a missing one is an error.
     render_passes: bool = True
     #: False: the frames are processed elsewhere (tiles on a cluster), so this process
-    #: does not prepare the numba kernels (:mod:`.precompile`).
+    #: does not compile the numba kernels (:mod:`.precompile`).
     processed_here: bool = True
 
     @property
@@ -241,7 +241,7 @@ def _check_methods(methods: Sequence[str]) -> list[str]:
     return names
 
 
-def prepare(
+def make_job(
     scene,
     frames: tuple[int, int],
     out: str | os.PathLike,
@@ -523,7 +523,9 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
     truth = read_combined(step.ground_truth) if step.ground_truth is not None else None
     frame = read_frame(step.path, number=step.frame)
     if job.processed_here:
-        precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), job.log)
+        precompile.ensure_compiled(
+            job.params.backend, run.spec.order, math.prod(frame.shape), job.log
+        )
     done = run.step(frame, source=step.path.name, ground_truth=truth)
     step.results, step.rows = done.results, done.rows
     step.post_seconds = time.perf_counter() - start
@@ -533,13 +535,9 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
         return
     row = next(r for r in done.rows if r["method"] == job.display)
     if job.images:
-        from .images import show_result
-
         show_result(result)
     settings = getattr(job.scene, "sss_settings", None)
     if settings is not None:
-        from .properties import store_stats
-
         value = float(row["psnr_db"]) if row["psnr_db"] else None
         truth = float(row["psnr_gt_db"]) if row.get("psnr_gt_db") else None
         store_stats(
@@ -570,7 +568,7 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
             job.params.backend, run.spec.order, job.log, math.prod(output_size(job.scene))
         )
     if job.warmup_frames and run.fresh:
-        warm_up(job, run)
+        render_warmup_frames(job, run)
     for step in iter_passes(job, needed=run.pending):
         _post_frame(job, run, step)
         yield step
@@ -587,7 +585,7 @@ def _renders_first(job: Job, run: SequenceRun) -> bool:
     return job.overwrite or not frame_done(job.passes_dir, first, job.denoise_passes)
 
 
-def warm_up(job: Job, run: SequenceRun) -> None:
+def render_warmup_frames(job: Job, run: SequenceRun) -> None:
     """Render (or reuse) the passes of the job's warm-up frames and feed them to ``run``.
 
     Their pass files sit beside the others (``passes/-007.exr`` for frame -7);
@@ -603,7 +601,9 @@ def warm_up(job: Job, run: SequenceRun) -> None:
     for step in iter_passes(warm):
         frame = read_frame(step.path, number=step.frame)
         if job.processed_here:
-            precompile.prepare(job.params.backend, run.spec.order, math.prod(frame.shape), log)
+            precompile.ensure_compiled(
+                job.params.backend, run.spec.order, math.prod(frame.shape), log
+            )
         run.warm_up(frame)
 
 
@@ -652,8 +652,6 @@ def job_from_scene(
     ProfileChoice replacing the scene's) and ``"separable"`` (SeparableParams
     fields overriding the scene's).
     """
-    from .properties import frame_range, settings_to_options, settings_to_params
-
     settings = scene.sss_settings
     names = list(methods) if methods else [settings.method]
     if params is None or isinstance(params, Mapping):
@@ -667,7 +665,7 @@ def job_from_scene(
             profile=given.get("profile", base.profile),
             separable=base.separable.replace(**given.get("separable", {})),
         )
-    return prepare(
+    return make_job(
         scene,
         frames if frames is not None else frame_range(scene),
         out if out is not None else resolve_output_dir(settings),
@@ -693,175 +691,3 @@ def job_from_scene(
 
 def _given(value, setting):
     return setting if value is None else value
-
-
-# -- the one-call API ---------------------------------------------------------------------------
-def _ensure_registered() -> Callable[[], None] | None:
-    """Register the add-on's types when run outside an enabled add-on (CLI).
-
-    Returns the matching unregister function, or None when already registered.
-    """
-    if hasattr(bpy.types.Scene, "sss_settings"):
-        return None
-    from ... import register, unregister
-
-    register()
-    return unregister
-
-
-def render_sequence(
-    source=None,
-    frames: tuple[int, int] | None = None,
-    out: str | os.PathLike | None = None,
-    methods: Sequence[str] | None = None,
-    params: SSSParams | Mapping | None = None,
-    engine: str | None = None,
-    overwrite: bool = False,
-    log: Log = print,
-    *,
-    reference: bool | None = None,
-    images: bool = False,
-    reference_every: int = 1,
-    options: MethodOptions | Mapping | None = None,
-    denoise_passes: bool | None = None,
-    ground_truth: bool | None = None,
-    ground_truth_samples: int | None = None,
-    ground_truth_every: int | None = None,
-    ground_truth_method: str | None = None,
-    warmup_frames: int = 0,
-    passes_only: bool = False,
-    range_start: int | None = None,
-    render_passes: bool = True,
-    processors=None,
-    on_job: Callable[[Job], None] | None = None,
-) -> list[dict]:
-    """Render passes and post-process a frame range; returns the metric rows.
-
-    Parameters
-    ----------
-    source : str or PathLike or bpy.types.Scene or None
-        A .blend to open (``wm.open_mainfile``; the file is never saved), a
-        scene, or None for the context scene.
-    frames : (start, end), inclusive, optional
-        Defaults to the scene's range (or the add-on's custom range).
-    out : folder, optional
-        Defaults to the scene's ``sss_settings.output_dir``.
-    methods : method names, optional
-        Defaults to ``sss_settings.method``.
-    params : SSSParams, or a mapping of SSSParams fields, optional
-        A mapping overrides the scene's settings field by field; None uses them.
-    engine : {"CYCLES", "EEVEE"}, optional
-        Defaults to ``sss_settings.engine``.
-    overwrite : bool
-        Render pass frames again even if their files exist, and start the
-        post-process over (otherwise it resumes a run with the same settings).
-    log : callable(str) or None
-        Progress printer.
-    reference : bool, optional
-        Also compute the reference for PSNR; defaults to ``sss_settings.use_reference``.
-    images : bool
-        Update the image datablocks after each frame.
-    reference_every : int
-        Compute the reference (and PSNR) on every k-th frame of the range only.
-    options : MethodOptions, or a mapping of overrides (see :func:`job_from_scene`)
-    denoise_passes : bool, optional
-        Denoise the passes with Blender's OIDN (Cycles passes only); defaults
-        to ``sss_settings.use_denoise_passes``.
-    ground_truth : bool, optional
-        Also render the frames with Cycles' own subsurface on (always Cycles)
-        into ``<out>/ground_truth`` and fill the ground-truth columns;
-        defaults to ``sss_settings.use_ground_truth``.
-    ground_truth_samples, ground_truth_every : int, optional
-        Its samples per pixel, and every k-th frame only; default: the settings.
-    ground_truth_method : {"BURLEY", "RANDOM_WALK"}, optional
-        Cycles' subsurface method for it; default: the setting.
-    warmup_frames : int
-        Render and process this many frames before the first one (not
-        written), so the first result has a history, as Apply on Render does
-        with the scene's ``warmup_frames``. A run that resumes has its
-        history and skips them.
-    passes_only : bool
-        Render the passes (and ground truth) only: no post-process, no metrics.
-    range_start : int, optional
-        First frame of the whole range when ``frames`` is one chunk of it (the
-        ground truth then falls on every k-th frame of the whole range).
-    render_passes : bool
-        False: read passes rendered elsewhere (chunks on a farm), never render.
-    processors : as :class:`core.run.SequenceRun` (the tiled post on a cluster)
-    on_job : called with the validated :class:`Job` before any work (e.g. to
-        render its passes elsewhere first)
-
-    Returns
-    -------
-    list of dict
-        Metric rows (frame, method, spp, pass_ms, psnr_db and, with a ground
-        truth, its columns) as in metrics.csv.
-
-    Raises
-    ------
-    RenderError
-        A problem with the inputs (missing .blend, bad frame range,
-        unwritable output, no subsurface material, …).
-    core.io.errors.PassError, core.io.errors.OutputError, core.params.ParameterError
-    """
-    unregister = _ensure_registered()
-    try:
-        if source is None or isinstance(source, bpy.types.Scene):
-            scene = source or bpy.context.scene
-        else:
-            path = Path(source).expanduser()
-            if not path.is_file():
-                raise RenderError(f"{path}: no such .blend file")
-            try:
-                bpy.ops.wm.open_mainfile(filepath=str(path.absolute()), load_ui=False)
-            except RuntimeError as exc:
-                # Blender's message ends with the cause ("File format is not supported …").
-                reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
-                raise RenderError(f"{path}: not a readable .blend file ({reason})") from None
-            scene = bpy.context.scene
-        job = job_from_scene(
-            scene,
-            frames=frames,
-            out=out,
-            methods=methods,
-            params=params,
-            engine=engine,
-            overwrite=overwrite,
-            reference=reference,
-            images=images,
-            log=log,
-            reference_every=reference_every,
-            options=options,
-            denoise_passes=denoise_passes,
-            ground_truth=ground_truth,
-            ground_truth_samples=ground_truth_samples,
-            ground_truth_every=ground_truth_every,
-            ground_truth_method=ground_truth_method,
-            warmup_frames=warmup_frames,
-        )
-        job.range_start = range_start
-        job.render_passes = render_passes
-        job.processed_here = processors is None
-        if on_job is not None:
-            on_job(job)
-        # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.
-        console = StdoutFilter(os.fspath(job.out)) if bpy.app.background and log else None
-        if console is not None:
-            console.start()
-        try:
-            if passes_only:
-                for _ in iter_passes(job):
-                    if console is not None:
-                        console.forward()
-                return []
-            run = run_of(job, processors=processors)
-            for _ in iter_sequence(job, run):
-                if console is not None:
-                    console.forward()
-        finally:
-            if console is not None:
-                console.stop()
-        return run.rows
-    finally:
-        if unregister is not None:
-            unregister()

@@ -45,9 +45,12 @@ from ...core.backends.compile import compile_all
 from ...core.bench.config import ADAPTIVE, MeasureRss
 from ...core.eval import quality
 from ...core.io.atomic import make_folder
+from ...core.io.exr import list_frames
 from ...core.methods import make_processor
 from ...core.params import SSSParams
 from ...core.synthetic import scene_frame
+from ..farm.bench import measure_workers
+from ..farm.cluster import FarmError
 from .plots import pyplot, save
 
 #: The command that regenerates out/bench (recorded in bench.json).
@@ -249,7 +252,8 @@ def measure_rss(workers: int) -> MeasureRss:
 
 
 # -- JIT compile time ------------------------------------------------------------------
-_WARM_UP = (
+#: A fresh process imports the backend, then compiles (or loads) its kernels; both timed.
+_COMPILE_IN_FRESH_PROCESS = (
     "import json, time; t0 = time.perf_counter(); "
     "from cvsss.core.backends import compile, select; b = select.resolve('numba'); "
     "t1 = time.perf_counter(); s = compile.compile_all() if b == 'numba' else None; "
@@ -276,7 +280,7 @@ def measure_jit() -> dict:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         for key in ("compile_s", "cache_load_s"):
             proc = subprocess.run(
-                [sys.executable, "-c", _WARM_UP],
+                [sys.executable, "-c", _COMPILE_IN_FRESH_PROCESS],
                 capture_output=True,
                 text=True,
                 env=env,
@@ -428,8 +432,6 @@ def run_bench(
     """
     cfg = config or bench.BenchConfig()
     if passes is not None:
-        from ...core.io.exr import list_frames
-
         list_frames(passes)  # a missing or empty folder is said now, not after the JIT
     out = Path(out)
     make_folder(out)
@@ -489,12 +491,8 @@ def run_bench(
 
 
 def _measure_workers(cfg: bench.BenchConfig, log, start: float) -> dict:
-    """The ``workers`` section (needs the cvsss[farm] extra; skipped without it)."""
-    try:
-        from ..farm.bench import measure_workers
-        from ..farm.cluster import FarmError
-    except ImportError as exc:  # pragma: no cover - the extension has no farm package
-        return {"skipped": str(exc)}
+    """The ``workers`` section (needs the cvsss[farm] extra; skipped without it: the
+    cluster then raises FarmError)."""
     try:
         return measure_workers(
             cfg,

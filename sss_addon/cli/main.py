@@ -42,9 +42,23 @@ if __package__ in (None, ""):
         _spec.loader.exec_module(_mod)
     __package__ = "cvsss.sss_addon.cli"
 
+from ...core.eval import quality
+from ...core.io.errors import CheckpointError, OutputError, PassError
+from ...core.io.exr import list_frames
+from ...core.io.sidecar import read_sidecar
 from ...core.methods import METHODS
 from ...core.params import ParameterError, SSSParams
+from ...core.profiles.factory import check_materials
+from ...core.run import RunSpec, run_folder
+from ..blender.errors import RenderError
+from ..farm.cluster import FarmError, open_cluster
+from ..farm.passes import PassRenderError, render_chunks
+from ..farm.post import post_distributed, tiled_processors
+from ..precompile import before_first_frame
 from ..progress import printer
+from . import bench, studies
+from .demo import SOURCES, DemoError, run_demo
+from .heap import keep_freed_memory
 from .params import (
     UserError,
     add_arguments,
@@ -53,6 +67,7 @@ from .params import (
     overrides,
     params_from_args,
 )
+from .truth import TruthPlan
 
 EXIT_USAGE = 2
 
@@ -378,8 +393,6 @@ def build_parser() -> argparse.ArgumentParser:
     _farm_arguments(rnd, "chunk")
     add_arguments(rnd)
 
-    from . import bench, studies
-
     bench.add_parser(sub)
     studies.add_parsers(sub)
     return parser
@@ -387,11 +400,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _check_first_frame(passes: Path, options) -> None:
     """Refuse a profile choice the first frame's materials cannot take, before any output."""
-    from ...core.io.errors import PassError
-    from ...core.io.exr import list_frames
-    from ...core.io.sidecar import read_sidecar
-    from ...core.profiles.factory import check_materials
-
     if options.profile is None:
         return
     try:
@@ -407,8 +415,6 @@ def post_params(args: argparse.Namespace, methods: list[str]) -> SSSParams:
     params = params_from_args(args)
     if args.quality is None:
         return params
-    from ...core.eval import quality
-
     tuned = [m for m in methods if m not in ("none", "reference")]
     if len(tuned) != 1:
         raise UserError(
@@ -439,8 +445,6 @@ def background_writer() -> Iterator:
 
 
 def _post(args: argparse.Namespace) -> int:
-    from ...core.run import RunSpec, run_folder
-
     methods = parse_methods(args.method)
     _check_at_least_one("--reference-every", args.reference_every)
     options = options_from_args(args)
@@ -468,9 +472,6 @@ def _post(args: argparse.Namespace) -> int:
     with background_writer() as submit:
         common["submit"] = submit
         if _distributed(args):
-            from ..farm.cluster import FarmError
-            from ..farm.post import post_distributed
-
             try:
                 post_distributed(
                     args.passes,
@@ -484,8 +485,6 @@ def _post(args: argparse.Namespace) -> int:
             except FarmError as exc:
                 raise UserError(str(exc)) from None
             return 0
-        from ..precompile import before_first_frame
-
         kernels = before_first_frame(spec.params.backend, spec.order, common["log"])
         run_folder(
             args.passes,
@@ -498,7 +497,7 @@ def _post(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    """``render``: parse, then call sss_addon.blender.render.render_sequence."""
+    """``render``: parse, then call sss_addon.blender.standalone.render_sequence."""
     frames = parse_frames(args.frames) if args.frames is not None else None
     methods = parse_methods(args.method) if args.method is not None else None
     params = overrides(args, "params")
@@ -530,7 +529,8 @@ def _render(args: argparse.Namespace) -> int:
         ) from None
     if args.blend is None and not bpy.data.filepath:
         raise UserError("no .blend file given and Blender has none open")
-    from ..blender.render import RenderError, render_sequence
+    # Imported here: it imports bpy, which every other command runs without.
+    from ..blender.standalone import render_sequence
 
     if _distributed(args):
         if args.range_start is not None:
@@ -578,10 +578,6 @@ def _render_distributed(
     args, blend, render_sequence, render_error, frames, methods, params, option_overrides
 ) -> int:
     """``render --workers/--scheduler``: pass chunks on the cluster, then the tiled post."""
-    from ..farm.cluster import FarmError, open_cluster
-    from ..farm.passes import PassRenderError, render_chunks
-    from ..farm.post import tiled_processors
-
     log = None if args.quiet else print
     try:
         with open_cluster(args.workers, args.scheduler, log=log) as executor:
@@ -603,8 +599,6 @@ def _render_distributed(
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from .demo import SOURCES, DemoError, run_demo
-
     offered = SOURCES[args.source]
     scenes = (
         offered if args.scenes is None else [x.strip() for x in args.scenes.split(",") if x.strip()]
@@ -621,8 +615,6 @@ def _demo(args: argparse.Namespace) -> int:
     _check_at_least_one("--ground-truth-spp", args.ground_truth_spp)
     if args.ground_truth_every < 0:
         raise UserError(f"--ground-truth-every must be >= 0, got {args.ground_truth_every}")
-    from .truth import TruthPlan
-
     truth = TruthPlan(every=args.ground_truth_every, samples=args.ground_truth_spp)
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))
@@ -662,8 +654,6 @@ def run(argv: list[str] | None = None) -> int:
         return _demo(args)
     if args.command == "render":
         return _render(args)
-    from . import bench, studies
-
     if args.command == "bench":
         try:
             return bench.run(args)
@@ -674,9 +664,6 @@ def run(argv: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: turns user errors into one line on stderr and exit status 2."""
-    from ...core.io.errors import CheckpointError, OutputError, PassError
-    from .heap import keep_freed_memory
-
     if argv is None:
         argv = sys.argv[1:]
         if "--" in argv:  # blender -b … --python main.py -- <args>

@@ -80,6 +80,7 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
     ``scene`` is the built demo scene (bpy); frames already on disk with the
     same settings are reused. Timings go to ``timing.json``.
     """
+    # Imported here: they import bpy, which the rest of the demo (synthetic source) runs without.
     from ..blender import ground_truth as gt
     from ..blender import materials as sss_materials
     from ..blender import render
@@ -101,7 +102,7 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
     table = plan.table_frames(frames)
     if not table:
         return
-    job = render.prepare(
+    job = render.make_job(
         scene, (1, max(table)), scene_dir / "denoised", methods=("none",), denoise_passes=True
     )
     for step in render.iter_passes(job):

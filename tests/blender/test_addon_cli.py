@@ -127,7 +127,7 @@ def test_headless_command_and_blender_script_do_the_same_job(demo_blend, tmp_pat
 
 
 def test_render_sequence_api_uses_current_scene(demo, tmp_path):
-    from cvsss.sss_addon.blender.render import render_sequence
+    from cvsss.sss_addon.blender.standalone import render_sequence
 
     rows = render_sequence(
         None,
@@ -186,7 +186,7 @@ def test_render_sequence_prepares_after_the_render_before_the_post(
 ):
     """The compile runs between the first passes' render and the first post-process, with
     nothing beside it (compiling beside Blender's render crashed the bpy module)."""
-    from cvsss.sss_addon.blender.render import render_sequence
+    from cvsss.sss_addon.blender.standalone import render_sequence
 
     calls = slow_compile(0.3)
     lines: list[tuple[float, str]] = []

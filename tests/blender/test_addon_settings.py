@@ -13,6 +13,7 @@ from cvsss.core.params import (  # noqa: E402
     flag_of,
     specs,
 )
+from cvsss.core.profiles import presets  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
 from cvsss.sss_addon.blender import materials  # noqa: E402
@@ -153,14 +154,10 @@ def test_material_participation_shape_override_preset(fresh):
     assert spec.options == {"preset": "skin1", "preset_scale": 10.0, "mm_per_unit": 1000.0}
     assert spec.slot == 1 and spec.d == pytest.approx((0.1, 0.2, 0.3))  # override wins
     m.use_override = False
-    presets = materials._presets()
-    if presets is None:  # the core has no preset table yet: the Principled shape stays
-        assert materials.material_shape(mat, fresh) == materials.principled_shape(mat)
-    else:
-        expected = presets.get("skin1").burley_d_mm() * 10.0 / 1000.0
-        np.testing.assert_allclose(materials.material_shape(mat, fresh), expected)
-        fresh.unit_settings.scale_length = 0.01  # centimetres: 10 mm per unit
-        np.testing.assert_allclose(materials.material_shape(mat, fresh), expected * 100.0)
+    expected = presets.get("skin1").burley_d_mm() * 10.0 / 1000.0
+    np.testing.assert_allclose(materials.material_shape(mat, fresh), expected)
+    fresh.unit_settings.scale_length = 0.01  # centimetres: 10 mm per unit
+    np.testing.assert_allclose(materials.material_shape(mat, fresh), expected * 100.0)
 
 
 def test_material_inside_node_group(fresh):

@@ -1,6 +1,6 @@
 """Apply on Render: Blender's own render delivers the finished frames (real Cycles, tiny frames).
 
-The reference of every comparison is ``cvsss render`` (render.render_sequence)
+The reference of every comparison is ``cvsss render`` (standalone.render_sequence)
 on the same scene, frames and settings: its linear Composite, written with
 the scene's colour management (Image.save_render) for 8-bit formats.
 """
@@ -17,7 +17,10 @@ bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_result  # noqa: E402
 from cvsss.sss_addon import precompile  # noqa: E402
-from cvsss.sss_addon.blender import native, render  # noqa: E402
+from cvsss.sss_addon.blender import apply_on_render, standalone  # noqa: E402
+from cvsss.sss_addon.blender.apply_on_render import handlers  # noqa: E402
+from cvsss.sss_addon.blender.apply_on_render.engine import ResultEngine  # noqa: E402
+from cvsss.sss_addon.blender.apply_on_render.session import Session, active_session  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -43,7 +46,7 @@ def _reference(
 ) -> dict[int, np.ndarray]:
     """Composite of ``cvsss render`` per frame (linear RGB, top row first)."""
     method = scene.sss_settings.method
-    render.render_sequence(
+    standalone.render_sequence(
         scene,
         frames,
         out,
@@ -94,10 +97,10 @@ def _frame_paths(scene) -> dict[int, Path]:
 
 
 def _result_engines() -> list:
-    """The :class:`native.ResultEngine` instances alive: an engine Blender kept after a
+    """The :class:`ResultEngine` instances alive: an engine Blender kept after a
     render (Persistent Data), with its depsgraph."""
     gc.collect()
-    return [o for o in gc.get_objects() if isinstance(o, native.ResultEngine)]
+    return [o for o in gc.get_objects() if isinstance(o, ResultEngine)]
 
 
 def test_png_animation_equals_cvsss_render(scene, tmp_path, snapshot):
@@ -111,7 +114,7 @@ def test_png_animation_equals_cvsss_render(scene, tmp_path, snapshot):
     print(f"3 frames at 48x27 with Apply on Render: {time.perf_counter() - began:.2f} s")
     assert state_diff(before, scene_state(scene)) == []
     assert {s.name for s in bpy.data.scenes} == scenes
-    assert native.active_session() is None
+    assert active_session() is None
     # The removed output scene left no engine (and depsgraph pointing at it) behind.
     assert _result_engines() == []
     paths = _frame_paths(scene)
@@ -146,14 +149,14 @@ def test_off_renders_as_without_the_add_on(scene, tmp_path):
     scene.sss_settings.apply_on_render = False
     scene.render.filepath = str(tmp_path / "off" / "f_")
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
-    handlers = {name: list(getattr(bpy.app.handlers, name)) for name in native._HANDLERS}
+    before = {name: list(getattr(bpy.app.handlers, name)) for name in handlers._HANDLERS}
     try:
-        native.unregister()
+        apply_on_render.unregister()
         scene.render.filepath = str(tmp_path / "plain" / "f_")
         assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     finally:
-        native.register()
-    assert {n: list(getattr(bpy.app.handlers, n)) for n in native._HANDLERS} == handlers
+        apply_on_render.register()
+    assert {n: list(getattr(bpy.app.handlers, n)) for n in handlers._HANDLERS} == before
     for frame in range(FRAMES[0], FRAMES[1] + 1):
         name = f"f_{frame:04d}.png"
         np.testing.assert_array_equal(
@@ -209,22 +212,22 @@ def test_error_and_cancel_restore_everything(scene, tmp_path, snapshot, monkeypa
     def broken(self, frame, path):
         raise OSError("injected")
 
-    monkeypatch.setattr(native.Session, "_read", broken)
+    monkeypatch.setattr(Session, "_read", broken)
     with pytest.raises(RuntimeError):  # Blender cancels: its next write fails on purpose
         bpy.ops.render.render(animation=True)
     assert state_diff(before, scene_state(scene)) == []
     assert {s.name for s in bpy.data.scenes} == scenes
-    assert native.active_session() is None
+    assert active_session() is None
     assert not Path(scene.render.frame_path(frame=1)).parent.exists()
     monkeypatch.undo()
 
     # Cancelled right after it began (Esc during the first frame).
-    native.on_render_init(scene)
-    session = native.active_session()
+    handlers.on_render_init(scene)
+    session = active_session()
     assert scene.render.image_settings.file_format == "OPEN_EXR_MULTILAYER"
-    native.on_render_pre(scene)
-    native.on_render_cancel(scene)
-    assert native.active_session() is None
+    handlers.on_render_pre(scene)
+    handlers.on_render_cancel(scene)
+    assert active_session() is None
     assert state_diff(before, scene_state(scene)) == []
     assert not session.folder.exists()
 
@@ -233,7 +236,7 @@ def test_error_and_cancel_restore_everything(scene, tmp_path, snapshot, monkeypa
 def ui(monkeypatch):
     """The handlers behave as on Blender's render thread (F12 in the UI): they only switch
     the settings and queue frames; sss.finish_render does the rest afterwards."""
-    monkeypatch.setattr(native, "_on_render_thread", lambda: True)
+    monkeypatch.setattr(handlers, "_on_render_thread", lambda: True)
 
 
 def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
@@ -245,9 +248,9 @@ def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
     # Blender's job is over: passes rendered, nothing delivered, the scene still switched.
     assert not (tmp_path / "render").exists()
     assert scene.render.image_settings.file_format == "OPEN_EXR_MULTILAYER"
-    native._poll()  # the UI's timer: the job is over, so it finishes (no window here)
+    handlers._poll()  # the UI's timer: the job is over, so it finishes (no window here)
     assert state_diff(before, scene_state(scene)) == []
-    assert native.active_session() is None
+    assert active_session() is None
     for frame, path in _frame_paths(scene).items():
         want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
         assert np.abs(_image_pixels(path) - want).max() <= 1 / 255 + 1e-6, frame
@@ -273,11 +276,11 @@ def test_ui_f12_shows_the_finished_frame(scene, tmp_path, snapshot, ui):
     assert np.abs(_image_pixels(saved) - want).max() <= 1 / 255 + 1e-6
 
 
-def test_ui_finishing_says_it_prepares_the_kernels_first(
+def test_ui_finishing_says_it_compiles_the_kernels_first(
     scene, tmp_path, snapshot, ui, no_compile, slow_compile
 ):
-    """F12 in the UI where the kernels are not prepared yet: the finishing steps show it in
-    the status bar for one tick, then prepare them (after Blender's render, nothing
+    """F12 in the UI where the kernels are not compiled yet: the finishing steps show it in
+    the status bar for one tick, then compile them (after Blender's render, nothing
     beside) and process the frame."""
     scene_state, state_diff = snapshot
     scene.frame_set(1)
@@ -288,8 +291,8 @@ def test_ui_finishing_says_it_prepares_the_kernels_first(
     assert bpy.ops.render.render() == {"FINISHED"}
     rendered = time.perf_counter()
     assert calls == []  # nothing beside Blender's render
-    steps = list(native.active_session().finish_steps())
-    assert steps[0] == precompile.PREPARING and steps[1].startswith("frame 1 "), steps
+    steps = list(active_session().finish_steps())
+    assert steps[0] == precompile.COMPILING_STATUS and steps[1].startswith("frame 1 "), steps
     assert calls == [(48 * 27, "cvsss-compile")] and rendered < no_compile["began"]
     assert state_diff(before, scene_state(scene)) == []
     saved = tmp_path / "render_result.png"
@@ -302,11 +305,11 @@ def test_ui_escape_restores_and_keeps_written_frames(scene, tmp_path, snapshot, 
     scene_state, state_diff = snapshot
     before = scene_state(scene)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
-    steps = native.active_session().finish_steps()
+    steps = active_session().finish_steps()
     texts = [next(steps) for _ in range(4)]  # three frames processed, the first written
     assert texts[-1].startswith("frame 1 -> ")
     steps.close()  # Esc
-    assert native.active_session() is None
+    assert active_session() is None
     assert state_diff(before, scene_state(scene)) == []
     assert [p.name for p in (tmp_path / "render").iterdir()] == ["f_0001.png"]
 
@@ -322,12 +325,12 @@ def test_ui_save_while_finishing_saves_the_users_scene(scene, tmp_path, snapshot
     scenes = sorted(s.name for s in bpy.data.scenes)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     saved = []
-    for text in native.active_session().finish_steps():
+    for text in active_session().finish_steps():
         path = tmp_path / f"saved{len(saved)}.blend"
         assert bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True) == {"FINISHED"}
         saved.append((path, text))
     assert len(saved) >= 7  # the warm-up, three frames, three deliveries, the display
-    assert native.active_session() is None
+    assert active_session() is None
     assert state_diff(before, scene_state(scene)) == []
     for frame, path in _frame_paths(scene).items():
         want = _colour_managed(scene, expected[frame], tmp_path / f"want{frame}.png")
@@ -345,18 +348,18 @@ def test_ui_reports_an_error_met_while_blender_rendered(scene, tmp_path, snapsho
     render any more: the finishing operator reports it, and restores the scene."""
     scene_state, state_diff = snapshot
     before = scene_state(scene)
-    written = native.Session.frame_written
+    written = Session.frame_written
 
     def broken(self, frame):
         if frame == FRAMES[1]:
             raise OSError("injected")
         written(self, frame)
 
-    monkeypatch.setattr(native.Session, "frame_written", broken)
+    monkeypatch.setattr(Session, "frame_written", broken)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     with pytest.raises(RuntimeError, match="frame 3: OSError: injected"):
         bpy.ops.sss.finish_render()
-    assert native.active_session() is None
+    assert active_session() is None
     assert state_diff(before, scene_state(scene)) == []
     assert not (tmp_path / "render").exists()
 
@@ -368,14 +371,14 @@ def test_background_error_at_the_last_frame_is_the_last_line(
     is not delivered, and cvsss's last line says why (README, Apply on Render, *Limits*)."""
     scene_state, state_diff = snapshot
     before = scene_state(scene)
-    original = native.Session.process_next
+    original = Session.process_next
 
     def broken(self):
         if self.still or self.pending[0][0] == FRAMES[1]:
             raise OSError("injected")
         return original(self)
 
-    monkeypatch.setattr(native.Session, "process_next", broken)
+    monkeypatch.setattr(Session, "process_next", broken)
     bpy.ops.render.render(animation=True)
     assert state_diff(before, scene_state(scene)) == []
     assert sorted(p.name for p in (tmp_path / "render").iterdir()) == ["f_0001.png", "f_0002.png"]
@@ -389,7 +392,7 @@ def test_background_error_at_the_last_frame_is_the_last_line(
     assert state_diff(before, scene_state(scene)) == []
     lines = [line for line in capfd.readouterr().out.splitlines() if line.startswith("cvsss: ")]
     assert lines[-1] == "cvsss: stopped after 0 delivered frame(s): OSError: injected", lines
-    assert native.active_session() is None
+    assert active_session() is None
 
 
 def test_frame_by_frame_renders_continue_the_history(scene, tmp_path):
@@ -454,7 +457,7 @@ def test_blender_b_renders_a_blend_with_apply_on_render(
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     report, stdout = check_script(
-        "native_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
+        "apply_on_render_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
     )
     assert report["install"] == ["FINISHED"] and report["render"] == ["FINISHED"]
     assert report["apply_on_render"] and report["scenes"] == ["Scene"]
@@ -487,7 +490,7 @@ def test_installed_extension_compiles_the_kernels_beside_blenders_render(
     monkeypatch.setenv("CVSSS_BACKGROUND_COMPILE", "1")
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
     report, stdout = check_script(
-        "native_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
+        "apply_on_render_check.py", extension_zip, tmp_path / "work", blend, cwd=tmp_path
     )
     assert report["render"] == ["FINISHED"]
     background = report["background"]

@@ -10,7 +10,7 @@ bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_combined, read_frame  # noqa: E402
 from cvsss.sss_addon.blender import ground_truth as gt  # noqa: E402
-from cvsss.sss_addon.blender import materials, passes, render  # noqa: E402
+from cvsss.sss_addon.blender import materials, passes, render, standalone  # noqa: E402
 from cvsss.sss_addon.cli import main as cli  # noqa: E402
 
 pytestmark = pytest.mark.bpy
@@ -74,7 +74,7 @@ def test_ground_truth_every_k_frames_in_metrics_and_scene_restored(
     seen = _spy(monkeypatch)
     out = tmp_path / "gt"
 
-    rows = render.render_sequence(
+    rows = standalone.render_sequence(
         None,
         (1, 3),
         out,
@@ -136,10 +136,10 @@ def test_ground_truth_every_k_frames_in_metrics_and_scene_restored(
     mtimes = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
     seen.clear()
     again = dict(log=None, reference=False, ground_truth=True, ground_truth_every=2)
-    render.render_sequence(None, (1, 3), out, ["none"], ground_truth_samples=SPP, **again)
+    standalone.render_sequence(None, (1, 3), out, ["none"], ground_truth_samples=SPP, **again)
     assert seen == [] and {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == mtimes
     # … unless made with other settings.
-    render.render_sequence(None, (1, 3), out, ["none"], ground_truth_samples=SPP // 2, **again)
+    standalone.render_sequence(None, (1, 3), out, ["none"], ground_truth_samples=SPP // 2, **again)
     assert [(s["frame"], s["samples"]) for s in seen if s["truth"]] == [
         (1, SPP // 2),
         (3, SPP // 2),
@@ -153,7 +153,7 @@ def test_error_or_cancel_during_ground_truth_restores_scene(demo, tmp_path, snap
     before, methods = scene_state(demo), _methods()
     seen = _spy(monkeypatch, fail_on_ground_truth=True)
     with pytest.raises(RuntimeError, match="simulated ground-truth failure"):
-        render.render_sequence(
+        standalone.render_sequence(
             None,
             (1, 2),
             tmp_path / "o",

@@ -10,6 +10,8 @@ import pytest
 
 from cvsss.sss_addon.cli import demo
 from cvsss.sss_addon.cli import main as cli
+from cvsss.sss_addon.cli.demo import passes as demo_passes
+from cvsss.sss_addon.cli.demo import targets
 
 
 @pytest.fixture(scope="module")
@@ -132,11 +134,11 @@ def test_a_new_pass_format_renders_the_passes_again_but_keeps_the_ground_truth(t
     old = {"source": "blender", "scene": "flash", "frames": 5, "scenes_sha256": "a"}
     (scene / "demo.json").write_text(json.dumps(old))
     logged = []
-    demo._pass_cache(scene, {**old, "pass_format": 2}, False, logged.append)
+    demo_passes.pass_cache(scene, {**old, "pass_format": 2}, False, logged.append)
     assert [n for n in kept + gone if (scene / n).exists()] == kept
     assert "removing 3 pass file(s)" in logged[0]
     assert json.loads((scene / "demo.json").read_text())["pass_format"] == 2
-    demo._pass_cache(scene, {**old, "pass_format": 2, "scenes_sha256": "b"}, False, None)
+    demo_passes.pass_cache(scene, {**old, "pass_format": 2, "scenes_sha256": "b"}, False, None)
     assert not any((scene / n).exists() for n in kept)
 
 
@@ -181,11 +183,11 @@ def test_each_missed_ground_truth_target_says_why():
         },
         {"scene": "s", "check": "as_ccv - none, warm frames (dB) >= 3", "value": 4.1, "met": True},
     ]
-    lines = demo.truth_reasons(summary, extras, rows)
+    lines = targets.truth_reasons(summary, extras, rows)
     reasons = [line for line in lines if line.startswith("- s, ")]
     assert len(reasons) == 3  # one per miss, none for the target met
     assert "+2.40 dB from separable, so the model has the room" in reasons[0]
     assert "costs 1.00 dB" in reasons[0] and "+2.10 dB from separable" in reasons[0]
     assert "outer rim is +0.066 too" in reasons[1]
     assert "reaches 31.50 dB" in reasons[2] and "36.20 dB" in reasons[2]
-    assert demo.truth_reasons(summary, extras, rows[3:]) == []
+    assert targets.truth_reasons(summary, extras, rows[3:]) == []

@@ -1,9 +1,9 @@
-"""sss_addon.precompile: the numba kernels prepared before the first frame is
+"""sss_addon.precompile: the numba kernels compiled before the first frame is
 processed, on a thread the caller waits for, and said out loud when that takes long.
 
 The compile is stood in for by a timed sleep where the test is about timing and
 messages (a cold compile takes most of a minute); the real one (loaded from the
-disk cache) runs in :func:`test_real_kernels_are_prepared`.
+disk cache) runs in :func:`test_real_kernels_are_compiled`.
 """
 
 import logging
@@ -23,27 +23,27 @@ STARTED = "compiling the numba kernels in a background process (first use on thi
 REPORT = re.compile(r"compiled the numba kernels in ([\d.]+) s; later runs load them from (.+)$")
 
 
-def test_numpy_prepares_nothing(no_compile, slow_compile):
+def test_numpy_compiles_nothing(no_compile, slow_compile):
     calls = slow_compile(0.0)
     lines = []
-    assert precompile.prepared("numpy", MC)
-    precompile.prepare("numpy", MC, 100, lines.append)
+    assert precompile.compiled_ready("numpy", MC)
+    precompile.ensure_compiled("numpy", MC, 100, lines.append)
     assert calls == [] and lines == [] and not no_compile
 
 
-def test_methods_that_do_not_sample_prepare_nothing(no_compile, slow_compile):
+def test_methods_that_do_not_sample_compile_nothing(no_compile, slow_compile):
     calls = slow_compile(0.0)
-    assert precompile.prepared("numba", ("none", "separable"))
-    precompile.prepare("numba", ("none", "separable"), 100, None)
+    assert precompile.compiled_ready("numba", ("none", "separable"))
+    precompile.ensure_compiled("numba", ("none", "separable"), 100, None)
     assert calls == [] and not no_compile
 
 
 def test_once_per_process_for_the_frame_size(no_compile, slow_compile):
     calls = slow_compile(0.0)
-    assert not precompile.prepared("numba", MC)
-    precompile.prepare("numba", MC, 1920 * 1080, None)
-    assert precompile.prepared("numba", MC) and precompile.prepared("auto", MC)
-    precompile.prepare("numba", MC, 64, None)
+    assert not precompile.compiled_ready("numba", MC)
+    precompile.ensure_compiled("numba", MC, 1920 * 1080, None)
+    assert precompile.compiled_ready("numba", MC) and precompile.compiled_ready("auto", MC)
+    precompile.ensure_compiled("numba", MC, 64, None)
     assert calls == [(1920 * 1080, "cvsss-compile")]
 
 
@@ -52,7 +52,7 @@ def test_a_long_compile_is_announced_then_reported(no_compile, slow_compile, mon
     slow_compile(0.6)
     lines = []
     began = time.perf_counter()
-    precompile.prepare("numba", MC, None, lines.append)
+    precompile.ensure_compiled("numba", MC, None, lines.append)
     returned = time.perf_counter()
     assert no_compile["ended"] <= returned  # the caller waited for the whole compile
     assert len(lines) == 2 and lines[0] == ANNOUNCE, lines
@@ -65,19 +65,19 @@ def test_a_long_compile_is_announced_then_reported(no_compile, slow_compile, mon
 def test_a_short_one_is_not_announced(no_compile, slow_compile):
     slow_compile(0.05)
     lines = []
-    precompile.prepare("numba", MC, None, lines.append)
+    precompile.ensure_compiled("numba", MC, None, lines.append)
     assert lines == []
 
 
 def test_a_failed_compile_is_logged(no_compile, slow_compile):
     slow_compile(0.0, RuntimeError("no LLVM here"))
     lines = []
-    precompile.prepare("numba", MC, None, lines.append)
+    precompile.ensure_compiled("numba", MC, None, lines.append)
     assert lines == ["compiling the numba kernels failed: RuntimeError: no LLVM here"]
-    assert precompile.prepared("numba", MC)  # not again: the frame's own call raises it
+    assert precompile.compiled_ready("numba", MC)  # not again: the frame's own call raises it
 
 
-def test_real_kernels_are_prepared(no_compile, monkeypatch):
+def test_real_kernels_are_compiled(no_compile, monkeypatch):
     """The real warm-up (from the disk cache, or compiled when it is cold) on the thread,
     reported (NOTICE 0), then a frame on the compiled kernel in this thread."""
     from cvsss.core.methods import make_processor
@@ -86,7 +86,7 @@ def test_real_kernels_are_prepared(no_compile, monkeypatch):
 
     monkeypatch.setattr(precompile, "NOTICE", 0.0)
     lines = []
-    precompile.prepare("numba", MC, 48 * 32, lines.append)
+    precompile.ensure_compiled("numba", MC, 48 * 32, lines.append)
     assert REPORT.match(lines[-1]), lines
     from cvsss.core.backends.numba import sampling
 
@@ -148,18 +148,20 @@ def test_no_background_compile_where_numba_is_not_installed(
     assert caplog.records == []
 
 
-def test_no_background_compile_once_the_kernels_are_prepared(
+def test_no_background_compile_once_the_kernels_are_compiled(
     no_compile, slow_compile, tmp_path, monkeypatch
 ):
     _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
     slow_compile(0.0)
-    precompile.prepare("numba", MC, 64, None)
+    precompile.ensure_compiled("numba", MC, 64, None)
     assert not precompile.start_background("numba", MC) and not precompile._background
 
 
-def test_prepare_waits_for_the_background_compile_then_loads(no_compile, tmp_path, monkeypatch):
-    """The first frame's prepare waits for the child, says so, and only then warms up in
-    this process (which loads what the child compiled)."""
+def test_ensure_compiled_waits_for_the_background_compile_then_loads(
+    no_compile, tmp_path, monkeypatch
+):
+    """The first frame's ensure_compiled waits for the child, says so, and only then
+    compiles in this process (which loads what the child compiled)."""
     done = tmp_path / "child-done"
     _child(
         tmp_path,
@@ -173,7 +175,7 @@ def test_prepare_waits_for_the_background_compile_then_loads(no_compile, tmp_pat
     )
     lines = []
     assert precompile.start_background("numba", MC, lines.append)
-    precompile.prepare("numba", MC, 64, lines.append)
+    precompile.ensure_compiled("numba", MC, 64, lines.append)
     assert seen == [True]  # after the child ended
     assert lines == [
         STARTED,
@@ -199,7 +201,7 @@ def test_a_failed_background_compile_is_reported_and_compiled_here(
     calls = slow_compile(0.0)
     lines = []
     assert precompile.start_background("numba", MC)
-    precompile.prepare("numba", MC, 64, lines.append)
+    precompile.ensure_compiled("numba", MC, 64, lines.append)
     assert lines == [
         f"the background compile of the numba kernels failed ({why}); compiling them here"
     ]
@@ -216,7 +218,9 @@ def test_stop_background_ends_a_running_compile(no_compile, tmp_path, monkeypatc
     assert not precompile._background  # a later start may begin again
 
 
-def test_prepare_waits_only_for_the_kernels_of_its_frame_size(no_compile, tmp_path, monkeypatch):
+def test_ensure_compiled_waits_only_for_the_kernels_of_its_frame_size(
+    no_compile, tmp_path, monkeypatch
+):
     """With the job's frame size the child reports ``ready`` once that size's kernels are
     compiled; the job goes on while it compiles the rest."""
     _child(
@@ -230,7 +234,7 @@ def test_prepare_waits_only_for_the_kernels_of_its_frame_size(no_compile, tmp_pa
     assert precompile.start_background("numba", MC, None, pixels=640 * 360)
     assert precompile._background["process"].args[-1] == str(640 * 360)
     began = time.perf_counter()
-    precompile.prepare("numba", MC, 640 * 360, lines.append)
+    precompile.ensure_compiled("numba", MC, 640 * 360, lines.append)
     assert time.perf_counter() - began < 30
     assert precompile._background["process"].poll() is None  # still compiling the rest
     assert lines == ["the numba kernels were compiled in the background in 30.5 s"]
@@ -245,7 +249,7 @@ def test_a_background_compile_that_cannot_start_leaves_the_job_to_compile(
     calls = slow_compile(0.0)
     assert not precompile.start_background("numba", MC)
     assert not precompile._background
-    precompile.prepare("numba", MC, 64, None)
+    precompile.ensure_compiled("numba", MC, 64, None)
     assert calls == [(64, "cvsss-compile")]
 
 
@@ -254,12 +258,12 @@ def test_the_add_on_starts_every_kernel_when_it_loads_in_the_ui_only(
 ):
     """``register()``'s step: in Blender's UI the compile of every kernel starts (no frame
     size); headless (``blender -b``, the bpy module) the render job starts its own."""
-    from cvsss import sss_addon
+    from cvsss.sss_addon import registration
 
     _child(tmp_path, monkeypatch, 'print(json.dumps({"seconds": 0.0}))')
-    assert not sss_addon._compile_on_load(background=True)
+    assert not registration._compile_on_load(background=True)
     assert not precompile._background
-    assert sss_addon._compile_on_load(background=False)
+    assert registration._compile_on_load(background=False)
     process = precompile._background["process"]
-    assert process.args[2:] == [str(Path(sss_addon.__file__).resolve().parents[1]), "cvsss"]
+    assert process.args[2:] == [str(Path(registration.__file__).resolve().parents[1]), "cvsss"]
     assert process.wait(30) == 0

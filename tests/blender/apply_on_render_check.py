@@ -8,7 +8,7 @@ output, then one line ``REPORT <json>``. With ``CVSSS_BACKGROUND_COMPILE=1`` the
 report also tells how the numba kernels were prepared (see
 ``background_report``).
 
-Usage: python native_check.py <zip> <work folder> <scene.blend>
+Usage: python apply_on_render_check.py <zip> <work folder> <scene.blend>
 """
 
 import json

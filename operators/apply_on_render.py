@@ -1,4 +1,4 @@
-"""``sss.finish_render``: the UI's end of Apply on Render (sss_addon/blender/native.py).
+"""``sss.finish_render``: the UI's end of Apply on Render (sss_addon/blender/apply_on_render/).
 
 Blender calls the render handlers on its render thread when the UI renders
 (F12, Ctrl-F12), so the warm-up, the post-process and the writing of the
@@ -11,7 +11,7 @@ frames written so far stay.
 import bpy
 from bpy.types import Operator
 
-from ..sss_addon.blender import native
+from ..sss_addon.blender.apply_on_render.session import active_session
 from .sequence import _message, status
 
 
@@ -24,10 +24,10 @@ class SSS_OT_finish_render(Operator):
 
     @classmethod
     def poll(cls, context):
-        return native.active_session() is not None
+        return active_session() is not None
 
     def execute(self, context):
-        session = native.active_session()
+        session = active_session()
         try:
             for _ in session.finish_steps():
                 pass
@@ -47,7 +47,7 @@ class SSS_OT_finish_render(Operator):
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
-        self._session = native.active_session()
+        self._session = active_session()
         self._steps = self._session.finish_steps()
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.05, window=context.window)

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.color import srgb_encode
-from ...core.eval.metrics import median3
-from ...core.io.exr import read_result
+from ....core.color import srgb_encode
+from ....core.eval.metrics import median3
+from ....core.io.exr import read_result
 
 ADAPTIVE = (
     ("as", "AS"),
@@ -179,3 +179,16 @@ def plot_pareto(summary: dict, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def make_plots(out: Path, scene: str, rows_frames: list[int], beta_max: int) -> None:
+    """Per-scene plots and previews from the files already written."""
+    scene_dir = out / scene
+    metrics = read_metrics(scene_dir / "metrics.csv")
+    plot_frames(metrics, out / f"{scene}_frames.png", scene)
+    picks = sorted(set(np.linspace(rows_frames[0], rows_frames[-1], 5).round().astype(int)))
+    for method in ("as", "as_ccv"):
+        if (scene_dir / method).is_dir():
+            plot_strip(scene_dir, method, picks, out / f"{scene}_strip_{method}.png", beta_max)
+    mid = picks[len(picks) // 2]
+    plot_preview(scene_dir, "as_ccv", mid, out / f"{scene}_preview_{mid:04d}.png", beta_max)

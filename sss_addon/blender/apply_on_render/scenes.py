@@ -1,0 +1,130 @@
+"""The scenes Apply on Render renders with, and what it tells about the user's scene.
+
+The *output scene* (:func:`output_scene`) keeps the user's output settings
+for :class:`.engine.ResultEngine` to write finished frames with Blender's own
+writer; :class:`DisplaySetup` turns the user's scene itself into one that
+shows a finished frame; :func:`scene_copy` makes the linked copies both the
+output scene and the warm-up renders use. :func:`pass_engine`,
+:func:`bypassed` and :func:`scene_notes` say what Apply on Render will do
+with the user's scene.
+"""
+
+from __future__ import annotations
+
+from ..errors import RenderError
+from ..passes import SceneSetup
+from .engine import ENGINE
+
+#: Engines whose renders Apply on Render turns into pass renders (Blender id -> cvsss name).
+PASS_ENGINES = {
+    "CYCLES": "CYCLES",
+    "BLENDER_EEVEE": "EEVEE",
+    "BLENDER_EEVEE_NEXT": "EEVEE",
+}
+
+
+def pass_engine(scene) -> str:
+    """``CYCLES`` or ``EEVEE`` for the scene's render engine; RenderError for any other."""
+    engine = scene.render.engine
+    if engine not in PASS_ENGINES:
+        raise RenderError(
+            f"Apply on Render needs Cycles or EEVEE as the render engine, the scene uses {engine}"
+        )
+    return PASS_ENGINES[engine]
+
+
+def bypassed(scene) -> list[str]:
+    """What of the user's render the finished frames leave out."""
+    notes = []
+    group = getattr(scene, "compositing_node_group", None)
+    if scene.render.use_compositing and group is not None and len(group.nodes):
+        notes.append("the compositor is bypassed (the finished frame is written as rendered)")
+    editor = scene.sequence_editor
+    strips = getattr(editor, "strips_all", None) or getattr(editor, "sequences_all", None)
+    if scene.render.use_sequencer and editor is not None and strips:
+        notes.append("the sequencer's strips are bypassed")
+    used = [layer.name for layer in scene.view_layers if layer.use]
+    if len(used) > 1:
+        notes.append(f"only view layer {used[0]!r} is rendered (of {len(used)})")
+    return notes
+
+
+def scene_notes(scene) -> list[str]:
+    """Short notes for the panel: what Apply on Render will do differently with this scene."""
+    notes = []
+    try:
+        pass_engine(scene)
+    except RenderError:
+        notes.append("Needs Cycles or EEVEE as the render engine")
+    if scene.render.is_movie_format:
+        notes.append("Movie: frames are encoded after the last one")
+    return notes + [note[0].upper() + note[1:] for note in bypassed(scene)]
+
+
+def scene_copy(scene, role: str):
+    """A linked copy of ``scene``, named ``cvsss <role> (<scene name>)``, for the add-on's
+    own renders; the add-on removes it when it is done with it.
+
+    Its *Persistent Data* is off, whatever the user's scene says, so that Blender frees
+    the render engine after each of its renders. With it on, Blender kept the engine
+    of a finished render, and the engine its depsgraph, registered with the blend
+    data; removing the copy then left that depsgraph pointing at freed memory, which
+    Blender read again whenever a datablock was added or removed later in the session
+    (valgrind: invalid reads in ``DEG_relations_tag_update`` after an Apply on Render
+    of the demo scene; a segmentation fault in ``bpy.data.images.remove`` in one CI
+    run).
+    """
+    copy = scene.copy()
+    copy.name = f"cvsss {role} ({scene.name})"
+    copy.render.use_persistent_data = False
+    return copy
+
+
+def output_scene(scene, layer_name: str):
+    """A linked copy of ``scene`` with its output settings and only its camera, for
+    :class:`.engine.ResultEngine` to write finished frames with Blender's own writer."""
+    out = scene_copy(scene, "output")
+    for child in list(out.collection.children):
+        out.collection.children.unlink(child)
+    for obj in list(out.collection.objects):
+        out.collection.objects.unlink(obj)
+    if scene.camera is not None:
+        out.collection.objects.link(scene.camera)
+        out.camera = scene.camera
+    r = out.render
+    r.engine = ENGINE
+    r.use_compositing = False
+    r.use_sequencer = False
+    r.use_border = False
+    r.use_multiview = False
+    # Existing files and placeholders are handled before each frame renders (as Blender does).
+    r.use_overwrite = True
+    r.use_placeholder = False
+    for layer in out.view_layers:
+        layer.use = layer.name == layer_name
+    settings = getattr(out, "sss_settings", None)
+    if settings is not None:
+        settings.apply_on_render = False
+    return out
+
+
+class DisplaySetup(SceneSetup):
+    """The user's scene rendering with :class:`.engine.ResultEngine` (the Render Result, a
+    still's file), only the processed view layer, whole frame; restored on exit."""
+
+    def _apply(self) -> None:
+        r = self.scene.render
+        r.engine = ENGINE
+        r.use_border = False
+        for layer in self.scene.view_layers:
+            layer.use = layer == self.view_layer
+
+
+def camera_animated(scene, materials) -> bool:
+    """Whether the sidecar of a frame needs the scene evaluated at that frame."""
+    cam = scene.camera
+    ids = [cam.data] if cam is not None else []
+    ids += [m.node_tree for m in materials if m.node_tree is not None]
+    if any(m.camera is not None for m in scene.timeline_markers):
+        return True
+    return any(i.animation_data is not None for i in ids)
