@@ -2,7 +2,7 @@
 twin, :mod:`core.mc.estimator`).
 
 :func:`pixel_sums` does, for every active pixel, what
-:func:`core.mc.estimator.active_pixels` does with arrays (its hash, channel
+:func:`core.mc.samples.active_pixels` does with arrays (its hash, channel
 edges and tail map), and for each of its samples what the NumPy sampling step
 does with whole arrays: R2 point, channel, radius and mixture density from the
 profile's tables, direction from the direction table, screen position,
@@ -166,9 +166,9 @@ def _pixel_sums(
 ):
     """Adds to ``distant`` the mean weighted difference of each of the P active SSS pixels.
 
-    Does, per pixel, what :func:`core.mc.estimator.active_pixels` does with
+    Does, per pixel, what :func:`core.mc.samples.active_pixels` does with
     arrays (hash, channel edges, the affine map u ↦ tail value, float32
-    copies), then per sample what :func:`core.mc.estimator._numpy_sums` does,
+    copies), then per sample what :func:`core.mc.samples.batch_sums` does,
     operation by operation in float32 (sums in float64, in sample order).
 
     Parameters

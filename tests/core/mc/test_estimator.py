@@ -8,7 +8,8 @@ import pytest
 
 from cvsss.core import SSSParams, make_processor
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc.estimator import _pdf, _pdf_at, active_pixels, estimate_distant
+from cvsss.core.mc.estimator import estimate_distant
+from cvsss.core.mc.samples import _pdf, _pdf_at, active_pixels
 from cvsss.core.profiles import BurleyProfile
 from cvsss.core.profiles.factory import ProfileChoice, frame_profile
 from cvsss.core.synthetic import flat_plane, scene_frame
