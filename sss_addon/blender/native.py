@@ -216,6 +216,25 @@ def scene_copy(scene, role: str):
     return copy
 
 
+@contextlib.contextmanager
+def frame_of(scene, frame: int) -> Iterator[None]:
+    """``scene`` at ``frame`` inside the block (a warm-up frame rendered through a copy
+    of it); its frame restored on exit.
+
+    The copy shares the user's objects and data, whose drivers still read the
+    user's scene: a driver variable on its Current Frame gave the frame the
+    user's render had stopped at, not the warm-up frame that Blender's own
+    render of that frame gives. ``frame_set``, as the frame property cannot
+    hold a negative frame (without the Allow Negative Frames preference).
+    """
+    before = scene.frame_current, scene.frame_subframe
+    scene.frame_set(frame)
+    try:
+        yield
+    finally:
+        scene.frame_set(before[0], subframe=before[1])
+
+
 def output_scene(scene, layer_name: str):
     """A linked copy of ``scene`` with its output settings and only its camera, for
     :class:`ResultEngine` to write finished frames with Blender's own writer."""
@@ -464,12 +483,13 @@ class Session:
             copy = scene_copy(self.scene, "warm-up")
             try:
                 layer = copy.view_layers[self.job.view_layer.name]
-                copy.frame_set(frame)
-                specs = sss_materials.material_specs(self.job.materials, copy)
-                with self._internal(), bpy.context.temp_override(scene=copy):
-                    path = render_frame(
-                        copy, frame, self.passes, specs, layer, self.job.denoise_passes
-                    )
+                with frame_of(self.scene, frame):
+                    copy.frame_set(frame)
+                    specs = sss_materials.material_specs(self.job.materials, copy)
+                    with self._internal(), bpy.context.temp_override(scene=copy):
+                        path = render_frame(
+                            copy, frame, self.passes, specs, layer, self.job.denoise_passes
+                        )
             finally:
                 bpy.data.scenes.remove(copy)
             frame_passes = self._read(frame, path)
