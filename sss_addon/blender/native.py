@@ -388,6 +388,11 @@ class Session:
         )
         for note in self.notes:
             _log("note: " + note)
+        from .autoexec import warning  # skipped by Blender's own render as well
+
+        skipped = warning("trust the file (blender -y, or Auto Run Python Scripts) to run them")
+        if skipped is not None:
+            _log(skipped)
         # The numba kernels compile in a process of their own while Blender renders, when
         # they are not cached yet (the add-on's registration in the UI started it already).
         precompile.start_background(

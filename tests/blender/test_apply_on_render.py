@@ -243,6 +243,46 @@ def test_warm_up_frames_get_the_driver_values_of_their_frame(scene, tmp_path):
         np.testing.assert_allclose(reference[frame], keyed[frame], rtol=0, atol=1e-4)
 
 
+def test_python_drivers_follow_blenders_auto_run(scene, tmp_path, capfd):
+    """The nested renders run a file's Python drivers exactly when Blender's own render
+    does: trusted file (``open_mainfile(use_scripts=True)``, ``blender -y``) or not."""
+    _drive_sun(scene, "keys")
+    keyed = _apply_on_render(scene, tmp_path / "keys")
+    scene.sss_settings.warmup_frames = 2
+    bpy.data.lights["flash Sun"].animation_data_clear()
+    bpy.data.lights["flash Sun"].energy = 0.0  # what a skipped driver gives
+    dark = _apply_on_render(scene, tmp_path / "dark")
+    _drive_sun(scene, "python")
+    blend = tmp_path / "python.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    try:
+        for trusted in (False, True):
+            bpy.ops.wm.open_mainfile(filepath=str(blend), use_scripts=trusted)
+            capfd.readouterr()
+            got = _apply_on_render(bpy.context.scene, tmp_path / f"trusted-{trusted}")
+            skipped = [ln for ln in capfd.readouterr().out.splitlines() if "auto-exec" in ln]
+            want = keyed if trusted else dark
+            for frame in want:
+                np.testing.assert_allclose(got[frame], want[frame], rtol=0, atol=1e-4)
+            assert (
+                skipped == []
+                if trusted
+                else [
+                    "cvsss: warning: Python auto-execution is off: 1 Python driver(s) (flash Sun: "
+                    "energy) are not run; trust the file (blender -y, or Auto Run Python Scripts) "
+                    "to run them"
+                ]
+            )
+    finally:
+        # Files opened from now on follow the (factory) preference again: not trusted.
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    probe = bpy.data.objects.new("probe", None)
+    bpy.context.scene.collection.objects.link(probe)
+    probe.driver_add("location", 0).driver.expression = "__import__('math').floor(frame)"
+    bpy.context.scene.frame_set(3)
+    assert not probe.animation_data.drivers[0].driver.is_valid
+
+
 def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot):
     scene_state, state_diff = snapshot
     scene.frame_set(1)
