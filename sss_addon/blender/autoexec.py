@@ -112,7 +112,8 @@ def warning(hint: str) -> str | None:
     found = skipped()
     if not found:
         return None
-    return f"warning: Python auto-execution is off: {found.describe()} are not run; {hint}"
+    verb = "is" if not found.drivers and len(found.scripts) == 1 else "are"
+    return f"warning: Python auto-execution is off: {found.describe()} {verb} not run; {hint}"
 
 
 def panel_note() -> str | None:

@@ -291,3 +291,15 @@ def test_file_blender_opened_keeps_blenders_own_choice(scripted_blend, tmp_path,
     ]
     assert _lenses(Path(out)) == {1: SKIPPED_LENS}
     assert bpy.context.scene.frame_current == 1
+
+
+def test_what_was_skipped_fits_one_line():
+    from cvsss.sss_addon.blender.autoexec import Skipped
+
+    many = Skipped([f"Cube.{i}: location[0]" for i in range(5)], ["a.py", "b.py"])
+    assert many.describe() == (
+        "5 Python driver(s) (Cube.0: location[0], Cube.1: location[0], Cube.2: location[0], "
+        "2 more) and scripts 'a.py', 'b.py'"
+    )
+    assert Skipped([], ["rig.py"]).describe() == "script 'rig.py'"
+    assert not Skipped()
