@@ -6,6 +6,7 @@ from bpy.types import Panel
 
 from ...core.backends import select as mc_backend
 from ...core.methods import METHODS
+from . import autoexec
 from . import materials as sss_materials
 from .apply_on_render.scenes import scene_notes
 from .properties import QUALITY_METHODS, param_properties
@@ -43,6 +44,9 @@ class SSS_PT_render(_RenderPanel, Panel):
         if s.apply_on_render:
             for text in scene_notes(context.scene):
                 sub.label(text=text, icon="INFO")
+        skipped = autoexec.panel_note()
+        if skipped is not None:  # Blender's own render skips them too
+            col.label(text=skipped, icon="ERROR")
 
         layout.prop(s, "method")
         row = layout.row()

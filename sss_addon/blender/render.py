@@ -121,6 +121,10 @@ class Job:
     #: False: the frames are processed elsewhere (tiles on a cluster), so this process
     #: does not compile the numba kernels (:mod:`.precompile`).
     processed_here: bool = True
+    #: Whether the opened .blend's Python drivers and registered scripts run (True,
+    #: False: ``wm.open_mainfile(use_scripts=…)``, Blender's -y / -Y), or None: as
+    #: Blender is set; passed on to the processes that render farm chunks.
+    autoexec: bool | None = None
 
     @property
     def passes_dir(self) -> Path:

@@ -10,6 +10,7 @@ the job itself (render.py, below the operators) must not import.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import bpy
 from ... import register, unregister
 from ...core.method import MethodOptions
 from ...core.params import SSSParams
+from .autoexec import warning as skipped_python
 from .console import StdoutFilter
 from .errors import RenderError
 from .render import Job, Log, iter_passes, iter_sequence, job_from_scene, run_of
@@ -59,6 +61,7 @@ def render_sequence(
     render_passes: bool = True,
     processors=None,
     on_job: Callable[[Job], None] | None = None,
+    autoexec: bool | None = None,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -115,6 +118,13 @@ def render_sequence(
     processors : as :class:`core.run.SequenceRun` (the tiled post on a cluster)
     on_job : called with the validated :class:`Job` before any work (e.g. to
         render its passes elsewhere first)
+    autoexec : bool, optional
+        Run the Python drivers and registered text blocks of the .blend opened
+        from ``source`` (True, as ``blender -y`` does) or not (False, ``-Y``);
+        None: as Blender is set (its Auto Run Python Scripts preference, off by
+        default, or the -y/-Y it was started with). Blender keeps the choice for
+        the files it opens later in the process. When Blender skipped some, one
+        ``warning:`` line on stderr names them before the render.
 
     Returns
     -------
@@ -132,13 +142,22 @@ def render_sequence(
     unregister_after = ensure_registered()
     try:
         if source is None or isinstance(source, bpy.types.Scene):
+            if autoexec is not None:
+                raise RenderError(
+                    "autoexec applies to a .blend that render_sequence opens; Blender "
+                    "opened this one with its own setting (blender -y runs its scripts)"
+                )
             scene = source or bpy.context.scene
+            # blender -b FILE --python main.py -- render: Blender's -y decided.
+            skipped_hint = "run Blender with -y to run them" if bpy.app.background else None
         else:
             path = Path(source).expanduser()
             if not path.is_file():
                 raise RenderError(f"{path}: no such .blend file")
+            trust = {} if autoexec is None else {"use_scripts": bool(autoexec)}
+            skipped_hint = "pass --enable-autoexec to run them"
             try:
-                bpy.ops.wm.open_mainfile(filepath=str(path.absolute()), load_ui=False)
+                bpy.ops.wm.open_mainfile(filepath=str(path.absolute()), load_ui=False, **trust)
             except RuntimeError as exc:
                 # Blender's message ends with the cause ("File format is not supported …").
                 reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unreadable"
@@ -167,6 +186,11 @@ def render_sequence(
         job.range_start = range_start
         job.render_passes = render_passes
         job.processed_here = processors is None
+        job.autoexec = autoexec
+        if skipped_hint is not None:
+            text = skipped_python(skipped_hint)
+            if text is not None:
+                print(text, file=sys.stderr, flush=True)
         if on_job is not None:
             on_job(job)
         # Blender's "Saved: '…tmp…exr'" lines of the pass files stay out of the progress.

@@ -380,6 +380,30 @@ def build_parser() -> argparse.ArgumentParser:
         help="Cycles' subsurface method of the ground truth: burley (Christensen-Burley, the "
         "profile the post samples) or random_walk (default: the scene's cvsss setting, burley)",
     )
+    scripts = rnd.add_argument_group(
+        "Python in the .blend (drivers with Python expressions, registered text blocks)",
+        "run as Blender runs them for the file: its Auto Run Python Scripts preference "
+        "decides (off unless set), -y/-Y as blender -y/-Y; when they do not run, one "
+        "warning line names them. With the file Blender opened (blender -b FILE --python "
+        "main.py -- render …), Blender's own -y/-Y decides",
+    ).add_mutually_exclusive_group()
+    scripts.add_argument(
+        "-y",
+        "--enable-autoexec",
+        dest="autoexec",
+        action="store_const",
+        const=True,
+        default=None,
+        help="run them (trust the file), as blender -y does",
+    )
+    scripts.add_argument(
+        "-Y",
+        "--disable-autoexec",
+        dest="autoexec",
+        action="store_const",
+        const=False,
+        help="never run them, whatever the preference, as blender -Y does",
+    )
     rnd.add_argument("--quiet", action="store_true", help="no per-frame progress")
     rnd.add_argument(
         "--passes-only",
@@ -529,6 +553,11 @@ def _render(args: argparse.Namespace) -> int:
         ) from None
     if args.blend is None and not bpy.data.filepath:
         raise UserError("no .blend file given and Blender has none open")
+    if args.blend is None and args.autoexec is not None:
+        raise UserError(
+            "--enable-autoexec/--disable-autoexec apply to the .blend this command opens; "
+            "for the file Blender opened, give Blender -y or -Y (blender -b -y FILE --python …)"
+        )
     # Imported here: it imports bpy, which every other command runs without.
     from ..blender.standalone import render_sequence
 
@@ -571,6 +600,7 @@ def _sequence_options(args: argparse.Namespace, frames, methods, params, option_
         "ground_truth_every": args.ground_truth_every,
         "ground_truth_method": None if method is None else method.upper(),
         "passes_only": args.passes_only,
+        "autoexec": args.autoexec,
     }
 
 

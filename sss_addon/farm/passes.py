@@ -84,6 +84,8 @@ def chunk_argv(blend: Path, out: Path, first: int, last: int, job, range_start: 
         argv.append("--no-ground-truth")
     if job.overwrite:
         argv.append("--overwrite")
+    if job.autoexec is not None:
+        argv.append("--enable-autoexec" if job.autoexec else "--disable-autoexec")
     return argv
 
 

@@ -1,6 +1,7 @@
 """``cvsss render``: the headless command, as a bpy-module command and as a Blender script."""
 
 import csv
+import json
 import subprocess
 import sys
 import time
@@ -206,3 +207,99 @@ def test_render_sequence_prepares_after_the_render_before_the_post(
     processed = next(t for t, text in lines if " as_ccv:" in text)
     assert rendered < no_compile["began"] and no_compile["ended"] <= processed
     assert (tmp_path / "run" / "as_ccv" / "0002.exr").is_file()
+
+
+# -- Python in the .blend: drivers and registered scripts (Blender's auto-execution) ----------
+#: rig.py, a registered text block: defines the function the camera's lens driver calls.
+RIG = "import bpy\nbpy.app.driver_namespace['lens_at'] = lambda frame: 50.0 + 2.0 * frame\n"
+
+
+@pytest.fixture
+def scripted_blend(demo, tmp_path):
+    """The demo .blend with a Python driver on the camera's lens (``lens_at(frame)``, which
+    only the registered text block rig.py defines) and that text block: 50 + 2·frame mm
+    when they run. Skipped, the driver evaluates to 0, which the lens clamps to its
+    minimum (as in Blender's own render)."""
+    demo.sss_settings.use_reference = False
+    camera = demo.camera.data
+    driver = camera.driver_add("lens").driver
+    driver.type = "SCRIPTED"
+    driver.expression = "lens_at(frame)"
+    rig = bpy.data.texts.new("rig.py")
+    rig.write(RIG)
+    rig.use_module = True
+    demo.frame_set(1)
+    # This session runs no file's Python (factory preferences): the driver is skipped.
+    assert not driver.is_valid
+    path = tmp_path / "scripted.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path, camera.name
+
+
+#: The lens a skipped driver leaves: its value 0, clamped to the property's minimum (mm).
+SKIPPED_LENS = max(0.0, bpy.types.Camera.bl_rna.properties["lens"].hard_min)
+
+
+def _lenses(out: Path) -> dict[int, float]:
+    """The camera lens (mm) each pass sidecar recorded, by frame."""
+    return {
+        int(p.stem): json.loads(p.read_text())["camera"]["lens"]
+        for p in sorted((out / "passes").glob("*.json"))
+    }
+
+
+def test_python_drivers_and_scripts_run_with_enable_autoexec(scripted_blend, tmp_path):
+    blend, camera = scripted_blend
+    before = blend.read_bytes()
+    args = ["-m", "cvsss.sss_addon.cli.main", "render", str(blend), "--frames", "1-2", "--quiet"]
+    # Off (Blender's default): one warning line naming what is not run.
+    off = _run([*args, "--out", str(tmp_path / "off")], tmp_path)
+    assert off.returncode == 0, off.stderr[-3000:]
+    warnings = [ln for ln in off.stderr.splitlines() if ln.startswith("warning: Python auto-exec")]
+    assert warnings == [
+        "warning: Python auto-execution is off: 1 Python driver(s) "
+        f"({camera}: lens) and script 'rig.py' are not run; "
+        "pass --enable-autoexec to run them"
+    ], off.stderr[-3000:]
+    assert _lenses(tmp_path / "off") == {1: SKIPPED_LENS, 2: SKIPPED_LENS}
+    # On: rig.py runs, so the driver does, at each frame; no warning.
+    on = _run([*args, "--out", str(tmp_path / "on"), "--enable-autoexec"], tmp_path)
+    assert on.returncode == 0, on.stderr[-3000:]
+    assert "auto-execution" not in on.stderr
+    assert _lenses(tmp_path / "on") == {1: 52.0, 2: 54.0}
+    # -Y: never, as blender -Y.
+    never = _run([*args, "--out", str(tmp_path / "never"), "-Y", "--frames", "2"], tmp_path)
+    assert never.returncode == 0, never.stderr[-3000:]
+    assert "pass --enable-autoexec to run them" in never.stderr
+    assert _lenses(tmp_path / "never") == {2: SKIPPED_LENS}
+    assert blend.read_bytes() == before  # never saved
+
+
+def test_file_blender_opened_keeps_blenders_own_choice(scripted_blend, tmp_path, capsys):
+    """``blender -b FILE --python main.py -- render``: Blender opened the file (here: the
+    bpy module, which has no -y), so its choice stands and the warning says how to change it."""
+    blend, camera = scripted_blend
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    out = str(tmp_path / "here")
+    assert cli.main(["render", "--frames", "1", "--out", out, "--enable-autoexec"]) == 2
+    assert "give Blender -y or -Y" in _error_line(capsys)
+    assert cli.main(["render", "--frames", "1", "--out", out, "--quiet"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert [ln for ln in err if "auto-execution" in ln] == [
+        "warning: Python auto-execution is off: 1 Python driver(s) "
+        f"({camera}: lens) and script 'rig.py' are not run; run Blender with -y to run them"
+    ]
+    assert _lenses(Path(out)) == {1: SKIPPED_LENS}
+    assert bpy.context.scene.frame_current == 1
+
+
+def test_what_was_skipped_fits_one_line():
+    from cvsss.sss_addon.blender.autoexec import Skipped
+
+    many = Skipped([f"Cube.{i}: location[0]" for i in range(5)], ["a.py", "b.py"])
+    assert many.describe() == (
+        "5 Python driver(s) (Cube.0: location[0], Cube.1: location[0], Cube.2: location[0], "
+        "2 more) and scripts 'a.py', 'b.py'"
+    )
+    assert Skipped([], ["rig.py"]).describe() == "script 'rig.py'"
+    assert not Skipped()

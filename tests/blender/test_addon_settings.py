@@ -265,6 +265,36 @@ class _Layout:
         self.log.append(("label", text))
 
 
+def test_panel_says_when_the_files_python_does_not_run(fresh, tmp_path):
+    """One line before a render when Blender skipped a registered script or a Python
+    driver of the file (its own render skips them too)."""
+    from types import SimpleNamespace
+
+    from cvsss.sss_addon.blender import panels
+
+    note = ("label", "Auto Run off: this file's Python drivers/scripts do not run")
+
+    def drawn() -> list:
+        log = []
+        context = SimpleNamespace(scene=bpy.context.scene)
+        panels.SSS_PT_render.draw(SimpleNamespace(layout=_Layout(log)), context)
+        return log
+
+    assert note not in drawn()
+    rig = bpy.data.texts.new("rig.py")
+    rig.write("registered = True\n")
+    rig.use_module = True
+    path = tmp_path / "rig.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(path))  # as Blender's preference says: off
+        assert note in drawn()
+        bpy.ops.wm.open_mainfile(filepath=str(path), use_scripts=True)  # trusted
+        assert note not in drawn()
+    finally:
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)  # untrusted again
+
+
 def test_panels_draw(fresh):
     from types import SimpleNamespace
 

@@ -182,6 +182,110 @@ def test_warm_up_matches_cvsss_render_warm_up(scene, tmp_path, capfd):
         assert np.abs(_image_pixels(path) - want).max() <= 1 / 255 + 1e-6, frame
 
 
+#: Frames of the driver tests: the scene's and its two warm-up frames before them.
+WARMED = range(FRAMES[0] - 2, FRAMES[1] + 1)
+
+
+def _sun_strength(frame: int) -> float:
+    """The sun strength (W/m²) the driver tests give the flash demo at ``frame``."""
+    return 2.0 + 1.5 * frame
+
+
+def _drive_sun(scene, how: str) -> None:
+    """The flash demo's sun strength as :func:`_sun_strength`: ``"keys"`` a key on every
+    frame of WARMED, ``"scene_frame"`` a driver reading the scene's Current Frame
+    through a variable, ``"python"`` a driver whose expression needs Python."""
+    sun = bpy.data.lights["flash Sun"]
+    sun.animation_data_clear()
+    if how == "keys":
+        for frame in WARMED:
+            sun.energy = _sun_strength(frame)
+            sun.keyframe_insert("energy", frame=frame)
+        return
+    driver = sun.driver_add("energy").driver
+    driver.type = "SCRIPTED"
+    if how == "scene_frame":
+        var = driver.variables.new()
+        var.name, var.type = "f", "SINGLE_PROP"
+        var.targets[0].id_type, var.targets[0].id = "SCENE", scene
+        var.targets[0].data_path = "frame_current"
+        driver.expression = "2 + 1.5 * f"
+    else:
+        driver.expression = "2 + 1.5 * __import__('math').floor(frame)"
+
+
+def _apply_on_render(scene, folder: Path) -> dict[int, np.ndarray]:
+    """Apply on Render of FRAMES with 2 warm-up frames into 32-bit EXRs: RGB per frame."""
+    scene.sss_settings.warmup_frames = 2
+    scene.render.filepath = str(folder / "f_")
+    settings = scene.render.image_settings
+    settings.file_format, settings.color_depth = "OPEN_EXR", "32"
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    return {f: _exr_rgba(p)[..., :3] for f, p in _frame_paths(scene).items()}
+
+
+def test_warm_up_frames_get_the_driver_values_of_their_frame(scene, tmp_path):
+    """Warm-up frames render a copy of the scene; drivers of the data it shares with the
+    user's scene read that scene, which is at the warm-up frame too (as in Blender's own
+    render of that frame). Before, a driver on the scene's Current Frame read the first
+    frame's number at every warm-up frame (the finished frames differed by about 0.02)."""
+    _drive_sun(scene, "keys")
+    keyed = _apply_on_render(scene, tmp_path / "keys")
+    _drive_sun(scene, "scene_frame")
+    for frame in WARMED:  # the driver gives the strength of each frame, warm-up ones too
+        scene.frame_set(frame)
+        assert bpy.data.lights["flash Sun"].energy == pytest.approx(_sun_strength(frame), 1e-6)
+    scene.frame_set(2)
+    driven = _apply_on_render(scene, tmp_path / "driven")
+    assert scene.frame_current == 2
+    for frame in keyed:
+        np.testing.assert_allclose(driven[frame], keyed[frame], rtol=0, atol=1e-4)
+    # cvsss render's warm-up (the scene itself at each frame) agrees.
+    reference = _reference(scene, tmp_path / "ref", warmup=2)
+    for frame in keyed:
+        np.testing.assert_allclose(reference[frame], keyed[frame], rtol=0, atol=1e-4)
+
+
+def test_python_drivers_follow_blenders_auto_run(scene, tmp_path, capfd):
+    """The nested renders run a file's Python drivers exactly when Blender's own render
+    does: trusted file (``open_mainfile(use_scripts=True)``, ``blender -y``) or not."""
+    _drive_sun(scene, "keys")
+    keyed = _apply_on_render(scene, tmp_path / "keys")
+    scene.sss_settings.warmup_frames = 2
+    bpy.data.lights["flash Sun"].animation_data_clear()
+    bpy.data.lights["flash Sun"].energy = 0.0  # what a skipped driver gives
+    dark = _apply_on_render(scene, tmp_path / "dark")
+    _drive_sun(scene, "python")
+    blend = tmp_path / "python.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    try:
+        for trusted in (False, True):
+            bpy.ops.wm.open_mainfile(filepath=str(blend), use_scripts=trusted)
+            capfd.readouterr()
+            got = _apply_on_render(bpy.context.scene, tmp_path / f"trusted-{trusted}")
+            skipped = [ln for ln in capfd.readouterr().out.splitlines() if "auto-exec" in ln]
+            want = keyed if trusted else dark
+            for frame in want:
+                np.testing.assert_allclose(got[frame], want[frame], rtol=0, atol=1e-4)
+            assert (
+                skipped == []
+                if trusted
+                else [
+                    "cvsss: warning: Python auto-execution is off: 1 Python driver(s) (flash Sun: "
+                    "energy) are not run; trust the file (blender -y, or Auto Run Python Scripts) "
+                    "to run them"
+                ]
+            )
+    finally:
+        # Files opened from now on follow the (factory) preference again: not trusted.
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    probe = bpy.data.objects.new("probe", None)
+    bpy.context.scene.collection.objects.link(probe)
+    probe.driver_add("location", 0).driver.expression = "__import__('math').floor(frame)"
+    bpy.context.scene.frame_set(3)
+    assert not probe.animation_data.drivers[0].driver.is_valid
+
+
 def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot):
     scene_state, state_diff = snapshot
     scene.frame_set(1)

@@ -73,6 +73,20 @@ def test_ground_truth_of_a_chunk_falls_on_the_whole_range(addon):
     assert [f for i, f in enumerate(job.frames) if job.ground_truth_due(i)] == [9, 14]
 
 
+def test_chunks_run_the_files_python_as_the_whole_render_does(addon):
+    """--enable-autoexec / --disable-autoexec reach the chunks' Blender processes."""
+    from cvsss.core.params import SSSParams
+    from cvsss.sss_addon.blender.render import Job
+    from cvsss.sss_addon.farm.passes import chunk_argv
+
+    job = Job(None, None, [1, 2], Path("."), [], SSSParams())
+    parser = cli.build_parser()
+    for choice in (None, True, False):
+        job.autoexec = choice
+        argv = chunk_argv(Path("scene.blend"), Path("out"), 1, 2, job, 1)
+        assert argv[3] == "render" and parser.parse_args(argv[3:]).autoexec is choice
+
+
 def test_chunks_are_consecutive_runs():
     from cvsss.sss_addon.farm.passes import chunks
 

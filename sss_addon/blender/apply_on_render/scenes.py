@@ -11,6 +11,9 @@ with the user's scene.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 from ..errors import RenderError
 from ..passes import SceneSetup
 from .engine import ENGINE
@@ -78,6 +81,25 @@ def scene_copy(scene, role: str):
     copy.name = f"cvsss {role} ({scene.name})"
     copy.render.use_persistent_data = False
     return copy
+
+
+@contextlib.contextmanager
+def frame_of(scene, frame: int) -> Iterator[None]:
+    """``scene`` at ``frame`` inside the block (a warm-up frame rendered through a copy
+    of it); its frame restored on exit.
+
+    The copy shares the user's objects and data, whose drivers still read the
+    user's scene: a driver variable on its Current Frame gave the frame the
+    user's render had stopped at, not the warm-up frame that Blender's own
+    render of that frame gives. ``frame_set``, as the frame property cannot
+    hold a negative frame (without the Allow Negative Frames preference).
+    """
+    before = scene.frame_current, scene.frame_subframe
+    scene.frame_set(frame)
+    try:
+        yield
+    finally:
+        scene.frame_set(before[0], subframe=before[1])
 
 
 def output_scene(scene, layer_name: str):

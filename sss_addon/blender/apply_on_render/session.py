@@ -31,6 +31,7 @@ from ....core.io.sidecar import write_sidecar
 from ....core.run import FrameStream, RunSpec
 from ... import precompile
 from .. import materials as sss_materials
+from ..autoexec import warning as skipped_python
 from ..console import StdoutFilter
 from ..errors import RenderError
 from ..images import show_result
@@ -44,7 +45,15 @@ from ..passes import (
 from ..properties import store_stats
 from ..render import job_from_scene, warmup_frames
 from .engine import rendering
-from .scenes import DisplaySetup, bypassed, camera_animated, output_scene, pass_engine, scene_copy
+from .scenes import (
+    DisplaySetup,
+    bypassed,
+    camera_animated,
+    frame_of,
+    output_scene,
+    pass_engine,
+    scene_copy,
+)
 
 
 def log(text: str) -> None:
@@ -172,6 +181,12 @@ class Session:
         )
         for note in self.notes:
             log("note: " + note)
+        # Blender's own render skips them as well.
+        skipped = skipped_python(
+            "trust the file (blender -y, or Auto Run Python Scripts) to run them"
+        )
+        if skipped is not None:
+            log(skipped)
         # The numba kernels compile in a process of their own while Blender renders, when
         # they are not cached yet (the add-on's registration in the UI started it already).
         precompile.start_background(
@@ -264,12 +279,13 @@ class Session:
             copy = scene_copy(self.scene, "warm-up")
             try:
                 layer = copy.view_layers[self.job.view_layer.name]
-                copy.frame_set(frame)
-                specs = sss_materials.material_specs(self.job.materials, copy)
-                with self._internal(), bpy.context.temp_override(scene=copy):
-                    path = render_frame(
-                        copy, frame, self.passes, specs, layer, self.job.denoise_passes
-                    )
+                with frame_of(self.scene, frame):
+                    copy.frame_set(frame)
+                    specs = sss_materials.material_specs(self.job.materials, copy)
+                    with self._internal(), bpy.context.temp_override(scene=copy):
+                        path = render_frame(
+                            copy, frame, self.passes, specs, layer, self.job.denoise_passes
+                        )
             finally:
                 bpy.data.scenes.remove(copy)
             frame_passes = self._read(frame, path)
