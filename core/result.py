@@ -43,7 +43,7 @@ class FrameResult:
     mask : (H, W) bool, SSS pixels (read-only, shared like ``gamma``)
     spp : float, mean count over SSS pixels
     samples : int, samples taken (separable: pixel reads)
-    pass_ms : float, wall time of the sampling step (separable: both passes) only
+    sampling_ms : float, wall time of the sampling step (separable: both passes) only
     update_ms : float, wall time of history + CV bookkeeping
     total_ms : float, wall time of the whole ``process()`` call
     distant_share : float, share of SSS pixels with max γ ≥ ε_u
@@ -69,7 +69,7 @@ class FrameResult:
     mask: np.ndarray
     spp: float
     samples: int
-    pass_ms: float
+    sampling_ms: float
     update_ms: float
     total_ms: float
     distant_share: float
@@ -153,7 +153,7 @@ def assemble(
     samples: int,
     fallback: int,
     draws: int,
-    pass_ms: float,
+    sampling_ms: float,
     started: float,
     update_ms: float = 0.0,
     alpha: np.ndarray | None = None,
@@ -172,7 +172,7 @@ def assemble(
     eps_u : float, ε_u of the distant-share statistic
     samples : int, samples taken
     fallback, draws : int, samples (or reads) that fell back to the centre, of ``draws``
-    pass_ms, update_ms : float, wall times (ms)
+    sampling_ms, update_ms : float, wall times (ms)
     started : float, ``time.perf_counter()`` when the caller's ``process()`` began:
         ``total_ms`` is the time from it to the end of this call (the composite and
         the maps included)
@@ -202,7 +202,7 @@ def assemble(
         mask=geom.mask_image,
         spp=float(np.mean(counted)) if pixels else 0.0,
         samples=int(samples),
-        pass_ms=pass_ms,
+        sampling_ms=sampling_ms,
         update_ms=update_ms,
         total_ms=0.0,
         distant_share=float(np.mean(distant)) if pixels else 0.0,

@@ -305,7 +305,7 @@ def assemble_result(
 
     Images are pasted; spp is the mean count over the assembled SSS mask
     (Σ samples / Σ pixels, exactly the whole-image figure), the shares are
-    quotients of summed integers, ``pass_ms`` and ``update_ms`` the summed work
+    quotients of summed integers, ``sampling_ms`` and ``update_ms`` the summed work
     of the tiles (not wall time), ``total_ms`` and ``repaired`` as given.
     """
     if not pieces:
@@ -336,7 +336,7 @@ def assemble_result(
         **images,
         spp=float(np.mean(counts[mask])) if pixels else 0.0,
         samples=int(samples),
-        pass_ms=float(sum(r.pass_ms for _, r in pieces)),
+        sampling_ms=float(sum(r.sampling_ms for _, r in pieces)),
         update_ms=float(sum(r.update_ms for _, r in pieces)),
         total_ms=float(total_ms),
         distant_share=distant / pixels if pixels else 0.0,

@@ -179,7 +179,7 @@ class SSS_OT_apply_frame(Operator):
         self.report(
             {"INFO"},
             f"Frame {frame} ({job.display}): mean spp {result.spp:.2f}, "
-            f"pass {result.pass_ms:.1f} ms",
+            f"pass {result.sampling_ms:.1f} ms",
         )
         return {"FINISHED"}
 

@@ -25,7 +25,7 @@ def progress_text(event: Progress) -> str:
         result = event.result
         return (
             f"frame {event.index}/{event.total} ({event.frame}) {event.method:>9}: "
-            f"spp {result.spp:7.2f}  pass {result.pass_ms:8.2f} ms  "
+            f"spp {result.spp:7.2f}  pass {result.sampling_ms:8.2f} ms  "
             f"psnr {format_value(event.psnr, 2) or '-':>6} dB  "
             f"[elapsed {format_clock(event.elapsed)}, eta {format_clock(event.eta)}]"
         )

@@ -28,7 +28,7 @@ import numpy as np
 from cvsss.core import METHODS, SSSParams, make_processor
 from cvsss.core.io.exr import list_frames, read_frame
 
-TIMINGS = ("pass_ms", "update_ms", "total_ms")
+TIMINGS = ("sampling_ms", "update_ms", "total_ms")
 
 
 def digest(value) -> str:

@@ -4,7 +4,7 @@ Every figure is a ratio or a fit of quantities measured side by side in one
 run on this machine, so it means something on any machine:
 
 ``ns_per_sample``
-    Wall time of the Monte Carlo sampling step (``FrameResult.pass_ms``)
+    Wall time of the Monte Carlo sampling step (``FrameResult.sampling_ms``)
     divided by the samples it took, at 640×360 and 1280×720 (median over
     frames 2…n of the flashing-light sequence; frame 1 has no history).
 ``gather_ns_per_sample``
@@ -46,7 +46,7 @@ run on this machine, so it means something on any machine:
     them (:func:`section_rss`); measuring needs one fresh process per
     configuration, which the command line does (``sss_addon.cli.bench``).
 ``pareto``
-    Mean spp, mean pass ms (3rd-order median over frames, P Sec. 7) and mean
+    Mean spp, mean sampling ms (3rd-order median over frames, P Sec. 7) and mean
     PSNR against the 1024-spp reference on the flashing-light sequence for
     ``fixed`` N ∈ {1…64}, the adaptive methods over σ0² ∈ {1e-2…1e-6} (and
     the extra σ0²/β_min of the quality calibration), and every separable

@@ -23,7 +23,7 @@ FRAME_METHODS = (*COST_METHODS, "as_ccv_t", "separable")
 #: Every section, in the order they run. ``rss`` runs last: its fresh processes take and
 #: free gigabytes, and for minutes afterwards the machine (here a VM returning the freed
 #: pages) slowed every timing section by spells of tens of milliseconds (the Pareto
-#: sweep's pass times by up to 1.6x on a quiet machine).
+#: sweep's sampling times by up to 1.6x on a quiet machine).
 SECTIONS = ("cost", "frames", "fit", "coverage", "resolution", "pareto", "workers", "rss")
 #: Section → its key in the result (default: the section's name).
 RESULT_KEYS = {

@@ -118,9 +118,9 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
         rows = []
         for job in jobs:
             st = steady(job.records)
-            samples, pass_ms = median_of(st, "samples"), median_of(st, "pass_ms")
+            samples, sampling_ms = median_of(st, "samples"), median_of(st, "sampling_ms")
             total_ms, update_ms = median_of(st, "total_ms"), median_of(st, "update_ms")
-            ns = pass_ms * 1e6 / samples if samples else math.nan
+            ns = sampling_ms * 1e6 / samples if samples else math.nan
             # The roofline of the same frames, each timed right after that frame's
             # passes with its counts: the ratio compares the two at one state of the
             # machine. (Dividing by the fastest gather of the whole section, timed
@@ -129,14 +129,14 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
             row = {
                 "samples": samples,
                 "spp": median_of(st, "spp"),
-                "pass_ms": pass_ms,
+                "sampling_ms": sampling_ms,
                 "update_ms": update_ms,
                 "total_ms": total_ms,
                 "ns_per_sample": ns,
                 "gather_ns_per_sample": gather,
                 "ratio_to_gather": ns / gather,
                 "overhead_fraction": update_ms / total_ms,
-                "non_sampling_fraction": (total_ms - pass_ms) / total_ms,
+                "non_sampling_fraction": (total_ms - sampling_ms) / total_ms,
             }
             out["by_backend"][job.params.backend].setdefault(size_key(size), {})[job.method] = row
             rows.append(row)

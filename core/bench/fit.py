@@ -50,10 +50,10 @@ def section_fit(cfg: BenchConfig, log: Log = None, start: float | None = None) -
     points, configs = [], {}
     for job in jobs:
         st = steady(job.records)
-        points += [[r["samples"], r["pass_ms"], job.label] for r in st]
+        points += [[r["samples"], r["sampling_ms"], job.label] for r in st]
         configs[job.label] = {
             "samples": median_of(st, "samples"),
-            "pass_ms": median_of(st, "pass_ms"),
+            "sampling_ms": median_of(st, "sampling_ms"),
             "overhead_fraction": median_of(st, "update_ms") / median_of(st, "total_ms"),
         }
     fit = linear_fit(np.array([p[0] for p in points]), np.array([p[1] for p in points]))

@@ -45,7 +45,7 @@ def section_frames(cfg: BenchConfig, log: Log = None, start: float | None = None
                 log,
                 start,
                 f"frame {size_key(size)} {b:>5} {job.method:>6}: {rec['total_ms']:8.1f} ms "
-                f"({rec['spp']:.1f} spp, sampling {rec['pass_ms']:.1f} ms)",
+                f"({rec['spp']:.1f} spp, sampling {rec['sampling_ms']:.1f} ms)",
             )
         del frames, jobs
     return out

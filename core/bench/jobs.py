@@ -83,7 +83,7 @@ def process_timed(
     Returns
     -------
     result : FrameResult of the last repetition
-    times : [(pass_ms, update_ms, total_ms, cpu_share)] per repetition; cpu_share
+    times : [(sampling_ms, update_ms, total_ms, cpu_share)] per repetition; cpu_share
         is the CPU time this thread got during ``process()`` over its wall time
         (also appended to :data:`CPU_LEDGER`)
     """
@@ -96,7 +96,9 @@ def process_timed(
         res = proc.process(frame)
         wall, cpu = time.perf_counter() - w0, time.thread_time() - c0
         CPU_LEDGER.append((wall, cpu))
-        times.append((res.pass_ms, res.update_ms, res.total_ms, cpu / wall if wall > 0 else 1.0))
+        times.append(
+            (res.sampling_ms, res.update_ms, res.total_ms, cpu / wall if wall > 0 else 1.0)
+        )
     return res, times
 
 
@@ -113,7 +115,7 @@ def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
     machine — another process, a frequency change — lands on all of them
     alike instead of on whichever ran at that moment: the figures are
     ratios measured side by side. Each record holds ``frame, spp, samples,
-    pass_ms, update_ms, total_ms, sss_pixels, distant_share`` and
+    sampling_ms, update_ms, total_ms, sss_pixels, distant_share`` and
     ``psnr_db`` (None without a reference) and ``cpu_share``: the CPU time
     this thread got during ``process()`` over its wall time (below ~0.9 the
     machine was busy with other processes and wall times are inflated; the
@@ -131,13 +133,13 @@ def run_jobs(jobs: Sequence[Job], count: int) -> list[Job]:
             res, times = process_timed(proc, frame, job.repeats if record else 1)
             if not record:
                 continue
-            pass_ms, update_ms, total_ms = (min(t[k] for t in times) for k in range(3))
+            sampling_ms, update_ms, total_ms = (min(t[k] for t in times) for k in range(3))
             job.records.append(
                 {
                     "frame": frame.number,
                     "spp": res.spp,
                     "samples": int(res.samples),
-                    "pass_ms": pass_ms,
+                    "sampling_ms": sampling_ms,
                     "update_ms": update_ms,
                     "total_ms": total_ms,
                     "sss_pixels": int(np.count_nonzero(res.mask)),
@@ -194,12 +196,12 @@ def steady(records: list[dict]) -> list[dict]:
 
 
 def summarize(records: Sequence[dict]) -> dict:
-    """Mean spp, pass ms (median-3 filtered, P Sec. 7), total ms and PSNR of records."""
+    """Mean spp, sampling ms (median-3 filtered, P Sec. 7), total ms and PSNR of records."""
     out = {
         "frames": len(records),
         "spp": float(np.mean([r["spp"] for r in records])),
         "samples": float(np.mean([r["samples"] for r in records])),
-        "pass_ms": float(np.mean(median3(np.array([r["pass_ms"] for r in records])))),
+        "sampling_ms": float(np.mean(median3(np.array([r["sampling_ms"] for r in records])))),
         "update_ms": float(np.mean([r["update_ms"] for r in records])),
         "total_ms": float(np.mean(median3(np.array([r["total_ms"] for r in records])))),
     }

@@ -31,13 +31,15 @@ def separable_kernels() -> tuple[list[tuple[str, SeparableParams]], str]:
 
 # -- the Pareto front and the quality calibration ---------------------------------
 def pareto_front(points: Sequence[dict]) -> list[int]:
-    """Indices of points no other point beats in both pass time and PSNR, fastest first.
+    """Indices of points no other point beats in both sampling time and PSNR, fastest first.
 
-    >>> pareto_front([{"pass_ms": 1, "psnr_db": 30}, {"pass_ms": 2, "psnr_db": 20},
-    ...               {"pass_ms": 3, "psnr_db": 40}])
+    >>> pareto_front([{"sampling_ms": 1, "psnr_db": 30}, {"sampling_ms": 2, "psnr_db": 20},
+    ...               {"sampling_ms": 3, "psnr_db": 40}])
     [0, 2]
     """
-    order = sorted(range(len(points)), key=lambda i: (points[i]["pass_ms"], -points[i]["psnr_db"]))
+    order = sorted(
+        range(len(points)), key=lambda i: (points[i]["sampling_ms"], -points[i]["psnr_db"])
+    )
     front, best = [], -math.inf
     for i in order:
         if points[i]["psnr_db"] > best:
@@ -56,7 +58,7 @@ def fixed_time_at(points: Sequence[dict], psnr_db: float) -> tuple[float, bool]:
     if len(fx) < 2:
         return math.nan, True
     ps = np.array([p["psnr_db"] for p in fx])
-    lt = np.log([p["pass_ms"] for p in fx])
+    lt = np.log([p["sampling_ms"] for p in fx])
     lt = np.minimum.accumulate(lt[::-1])[::-1]
     if ps[0] <= psnr_db <= ps[-1]:
         return float(np.exp(np.interp(psnr_db, ps, lt))), False
@@ -179,14 +181,14 @@ def section_pareto(
             {
                 **m,
                 **s,
-                "per_frame": [[r["samples"], r["pass_ms"], r["psnr_db"]] for r in job.records],
+                "per_frame": [[r["samples"], r["sampling_ms"], r["psnr_db"]] for r in job.records],
             }
         )
         progress(
             log,
             start,
             f"pareto {m['label']:<30} {s['spp']:6.2f} spp "
-            f"{s['pass_ms']:8.2f} ms {s['psnr_db']:6.2f} dB",
+            f"{s['sampling_ms']:8.2f} ms {s['psnr_db']:6.2f} dB",
         )
     front = set(pareto_front(points))
     for i, p in enumerate(points):
@@ -225,9 +227,9 @@ def section_pareto(
                 {
                     "value": p["value"],
                     "psnr_db": p["psnr_db"],
-                    "pass_ms": p["pass_ms"],
+                    "sampling_ms": p["sampling_ms"],
                     "fixed_ms_at_equal_psnr": t_fixed,
-                    "ratio": p["pass_ms"] / t_fixed,
+                    "ratio": p["sampling_ms"] / t_fixed,
                     "extrapolated": extra,
                 }
             )
@@ -241,7 +243,7 @@ def section_pareto(
         "backend_default": default_backend,
         "by_backend": {
             b: [
-                {k: p[k] for k in ("label", "method", "value", "spp", "pass_ms", "psnr_db")}
+                {k: p[k] for k in ("label", "method", "value", "spp", "sampling_ms", "psnr_db")}
                 | {"front": p.get("front_backend", False)}
                 for p in pts
             ]
@@ -272,7 +274,7 @@ def calibration_from(
             "values": [p["value"] for p in ps],
             "psnr_db": [p["psnr_db"] for p in ps],
             "spp": [p["spp"] for p in ps],
-            "pass_ms": [p["pass_ms"] for p in ps],
+            "sampling_ms": [p["sampling_ms"] for p in ps],
             "fixed": fixed,
         }
 

@@ -18,7 +18,7 @@ from .jobs import Job, median_of, run_jobs, steady, synthetic_frames
 def _scaling_row(records: list[dict], size: Size) -> dict:
     sss = median_of(records, "sss_pixels")
     distant = float(np.median([r["sss_pixels"] * r["distant_share"] for r in records]))
-    total, pss = median_of(records, "total_ms"), median_of(records, "pass_ms")
+    total, pss = median_of(records, "total_ms"), median_of(records, "sampling_ms")
     samples = median_of(records, "samples")
     return {
         "size": size_key(size),
@@ -28,7 +28,7 @@ def _scaling_row(records: list[dict], size: Size) -> dict:
         "samples": samples,
         "spp": median_of(records, "spp"),
         "total_ms": total,
-        "pass_ms": pss,
+        "sampling_ms": pss,
         "ns_per_sss_pixel": total * 1e6 / sss if sss else math.nan,
         "ns_per_sample": pss * 1e6 / samples if samples else math.nan,
     }
@@ -75,7 +75,7 @@ def section_coverage(cfg: BenchConfig, log: Log = None, start: float | None = No
     ref = max(rows, key=lambda r: r["coverage"])
     for row in rows:
         row["time_ratio"] = row["total_ms"] / ref["total_ms"]
-        row["pass_ratio"] = row["pass_ms"] / ref["pass_ms"]
+        row["pass_ratio"] = row["sampling_ms"] / ref["sampling_ms"]
         row["sss_ratio"] = row["sss_pixels"] / ref["sss_pixels"]
     out = {
         "size": size_key(size),
@@ -110,7 +110,7 @@ def section_coverage(cfg: BenchConfig, log: Log = None, start: float | None = No
             "raised": b,
             "distant_ratio": b["distant_pixels"] / a["distant_pixels"],
             "samples_ratio": b["samples"] / a["samples"],
-            "pass_ratio": b["pass_ms"] / a["pass_ms"],
+            "pass_ratio": b["sampling_ms"] / a["sampling_ms"],
             "time_ratio": b["total_ms"] / a["total_ms"],
         }
         progress(
@@ -139,7 +139,7 @@ def section_resolution(cfg: BenchConfig, log: Log = None, start: float | None = 
     )
     for size, row in zip(cfg.scaling_sizes, rows):
         row["ns_per_pixel"] = row["total_ms"] * 1e6 / row["pixels"]
-        row["pass_ns_per_pixel"] = row["pass_ms"] * 1e6 / row["pixels"]
+        row["pass_ns_per_pixel"] = row["sampling_ms"] * 1e6 / row["pixels"]
         progress(
             log,
             start,

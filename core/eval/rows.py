@@ -2,7 +2,7 @@
 
 Columns (:data:`METRICS_FIELDS`):
 
-``spp``, ``pass_ms``, ``frame_ms``
+``spp``, ``sampling_ms``, ``frame_ms``
     The mean sample count over SSS pixels, the wall time of the sampling step and of
     the method's whole post-process of the frame (ms, this machine).
 ``psnr_db``
@@ -41,7 +41,7 @@ METRICS_FIELDS = (
     "frame",
     "method",
     "spp",
-    "pass_ms",
+    "sampling_ms",
     "frame_ms",
     "psnr_db",
     "psnr_gt_db",
@@ -88,7 +88,7 @@ def method_row(
         "frame": number,
         "method": method,
         "spp": format_value(result.spp),
-        "pass_ms": format_value(result.pass_ms, 3),
+        "sampling_ms": format_value(result.sampling_ms, 3),
         "frame_ms": format_value(result.total_ms, 3),
         "psnr_db": format_value(value, 3),
     }

@@ -104,7 +104,7 @@ _RESULT_LAYERS: dict[str, tuple[str, tuple[str, ...]]] = {
 _RESULT_STATS = (
     "spp",
     "samples",
-    "pass_ms",
+    "sampling_ms",
     "update_ms",
     "total_ms",
     "distant_share",
@@ -758,7 +758,7 @@ def write_result(
     ``SampleCount.V``, ``Alpha.V``, ``Variance.V``, ``ValidHistory.V`` and
     ``Mask.V`` (0/1). Header string attributes: ``cvsss.method``,
     ``cvsss.frame``, the scalar statistics of the result (``cvsss.spp``,
-    ``cvsss.samples``, ``cvsss.pass_ms``, ``cvsss.update_ms``,
+    ``cvsss.samples``, ``cvsss.sampling_ms``, ``cvsss.update_ms``,
     ``cvsss.total_ms``, ``cvsss.distant_share``, ``cvsss.fallback_share``,
     ``cvsss.repaired``) and ``cvsss.<key>`` = ``str(value)`` per metadata item.
 

@@ -3,7 +3,7 @@
 :class:`MonteCarloProcessor` serves ``none``, ``fixed``, ``reference`` and the
 adaptive methods of the registry (core.methods). It carries the per-pixel
 history from frame to frame; only the Monte Carlo sampling step is timed as
-the "pass time", history and CV bookkeeping separately so their overhead can
+the sampling time (``sampling_ms``), history and CV bookkeeping separately so their overhead can
 be reported.
 """
 
@@ -182,7 +182,7 @@ class MonteCarloProcessor:
             hidden_light=p.hidden_light,
             contact=p.contact,
         )
-        pass_ms = (time.perf_counter() - t0) * 1e3
+        sampling_ms = (time.perf_counter() - t0) * 1e3
 
         b = geom.at(frame.lighting).astype(np.float64)
         distant = est.distant
@@ -190,7 +190,7 @@ class MonteCarloProcessor:
         if self.method.temporal == "guided" and p.temporal_mode == "multiplicative":
             t_proxy = time.perf_counter()
             proxy = self._proxy(frame, profile, geom, b)
-            pass_ms += (time.perf_counter() - t_proxy) * 1e3
+            sampling_ms += (time.perf_counter() - t_proxy) * 1e3
 
         t1 = time.perf_counter()
         alpha = variance = None
@@ -230,7 +230,7 @@ class MonteCarloProcessor:
             samples=est.samples,
             fallback=est.fallback,
             draws=est.samples,
-            pass_ms=pass_ms,
+            sampling_ms=sampling_ms,
             update_ms=update_ms,
             started=t_start,
             alpha=alpha,

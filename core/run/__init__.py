@@ -55,7 +55,7 @@ encoding a result EXR takes about as long as the frame's subsurface
 scattering at 1920×1080, and reading and checking the next frame's passes
 leaves a core free. :meth:`core.run.driver.SequenceRun.step` waits for the previous frame's
 files before any method runs, so the writing never slows the timed steps
-(``pass_ms``, ``frame_ms``), and raises their error (OutputError) there;
+(``sampling_ms``, ``frame_ms``), and raises their error (OutputError) there;
 :meth:`core.run.driver.SequenceRun.finish` and :meth:`~core.run.driver.SequenceRun.wait` wait for the last. A
 checkpoint is still written only after its frame's result, so a resumed run
 never skips a frame whose file is missing. The files are the same as an

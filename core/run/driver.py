@@ -470,7 +470,7 @@ class SequenceRun:
         due = self.reference_due(number)
         # The previous frame's files (``submit``) were written while this frame was
         # read; they are finished before any method runs, so that their encoding
-        # does not slow the sampling steps timed below (pass_ms, frame_ms).
+        # does not slow the sampling steps timed below (sampling_ms, frame_ms).
         self.wait()
         self.start(frame)
         if due:

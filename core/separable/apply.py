@@ -363,7 +363,7 @@ def apply(
     -------
     geom : Geometry of the SSS pixels
     shaded : (P, 3) float64, L per SSS pixel (linear, >= 0)
-    stats : dict with ``pass_ms`` (both passes), ``reads_per_pixel`` (2·J·taps, twice that
+    stats : dict with ``sampling_ms`` (both passes), ``reads_per_pixel`` (2·J·taps, twice that
         with the linear filter: what the method reads per pixel, its "sample count"),
         ``fallback_share`` (tap reads that fell back to the centre, of all tap reads),
         and its terms ``fallback`` and ``tap_reads`` (of a crop's core pixels only)
@@ -377,7 +377,7 @@ def apply(
             geom,
             np.zeros((0, 3)),
             {
-                "pass_ms": 0.0,
+                "sampling_ms": 0.0,
                 "reads_per_pixel": 0,
                 "fallback_share": 0.0,
                 "fallback": 0,
@@ -398,7 +398,7 @@ def apply(
         frame.lighting, frame.depth, geom.slots, px, geom.shape, tab, j, key, slope, linear,
         backend=backend,
     )  # fmt: skip
-    pass_ms = (time.perf_counter() - t0) * 1e3
+    sampling_ms = (time.perf_counter() - t0) * 1e3
     shaded = np.empty((geom.size, 3))
     shaded[px.order] = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64).T
     big = float(np.finfo(np.float32).max)
@@ -410,7 +410,7 @@ def apply(
         geom,
         shaded,
         {
-            "pass_ms": pass_ms,
+            "sampling_ms": sampling_ms,
             "reads_per_pixel": 2 * j * params.taps * per_read,
             "fallback_share": fallback / tap_reads if tap_reads else 0.0,
             "fallback": fallback,

@@ -77,7 +77,7 @@ class SeparableProcessor:
             samples=int(reads[geom.core].sum()) if geom.core is not None else int(reads.sum()),
             fallback=stats["fallback"],
             draws=stats["tap_reads"],
-            pass_ms=stats["pass_ms"],
+            sampling_ms=stats["sampling_ms"],
             started=t_start,
             backend=self.params.backend,
         )

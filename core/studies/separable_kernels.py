@@ -6,7 +6,7 @@ For every kernel of :data:`cvsss.core.separable.kernels.KERNELS`:
   2D approximation A against the discrete 2D profile R (the "true kernel"),
   per channel, for each SSS material of the synthetic scene (Burley) and for
   the dipole profile of each measured preset (seeds/004 section G);
-- **cost**: wall time of the two convolution passes (``pass_ms``, median over
+- **cost**: wall time of the two convolution passes (``sampling_ms``, median over
   frames) on ``core.synthetic.scene_frame('flash', n, W, H)``, per tap count;
 - **PSNR** of the composite against the Monte Carlo reference of the same
   profile (display-referred luminance over SSS pixels, core.metrics.psnr),
@@ -88,15 +88,15 @@ def run(
             ms, db = [], []
             for f, ref in zip(frame_list, refs):
                 res = proc.process(f)
-                ms.append(res.pass_ms)
+                ms.append(res.sampling_ms)
                 db.append(psnr(res.composite, ref.composite, res.mask, params.exposure))
             cost.append(
                 {
                     "kernel": kernel,
                     "taps": n,
                     "passes": _passes(kernel, gaussians),
-                    "pass_ms": float(np.median(ms)),
-                    "pass_ms_min": float(np.min(ms)),
+                    "sampling_ms": float(np.median(ms)),
+                    "sampling_ms_min": float(np.min(ms)),
                     "psnr_db": float(np.mean(db)),
                     "sss_pixels": int(res.mask.sum()),
                 }
@@ -109,8 +109,8 @@ def run(
             {
                 "method": method,
                 "spp": float(np.mean([r.spp for r in rows])),
-                "pass_ms": float(np.median([r.pass_ms for r in rows])),
-                "pass_ms_min": float(np.min([r.pass_ms for r in rows])),
+                "sampling_ms": float(np.median([r.sampling_ms for r in rows])),
+                "sampling_ms_min": float(np.min([r.sampling_ms for r in rows])),
                 "psnr_db": float(
                     np.mean(
                         [
@@ -169,7 +169,7 @@ def format_tables(result: dict) -> str:
     for kernel in dict.fromkeys(c["kernel"] for c in result["cost"]):
         rows = [c for c in result["cost"] if c["kernel"] == kernel]
         errs = " | ".join("/".join(f"{e:.3f}" for e in result["errors"][m][kernel]) for m in mats)
-        ms = " | ".join(f"{c['pass_ms_min']:.0f}" for c in rows)
+        ms = " | ".join(f"{c['sampling_ms_min']:.0f}" for c in rows)
         db = " | ".join(f"{c['psnr_db']:.2f}" for c in rows)
         lines.append(f"| {kernel} | {rows[0]['passes']} | {errs} | {ms} | {db} |")
     opt = result.get("svd_optimum_errors") or {}
@@ -189,10 +189,15 @@ def format_tables(result: dict) -> str:
         "median is in the JSON). Burley's profile has one shape (d only scales it), so its "
         "kernel errors are the same for every material and channel.",
     ]
-    lines += ["", "| Monte Carlo | mean spp | pass ms | PSNR dB |", "| --- | ---: | ---: | ---: |"]
+    lines += [
+        "",
+        "| Monte Carlo | mean spp | sampling ms | PSNR dB |",
+        "| --- | ---: | ---: | ---: |",
+    ]
     for r in result["monte_carlo"]:
         lines.append(
-            f"| {r['method']} | {r['spp']:.1f} | {r['pass_ms_min']:.0f} | " f"{r['psnr_db']:.2f} |"
+            f"| {r['method']} | {r['spp']:.1f} | {r['sampling_ms_min']:.0f} | "
+            f"{r['psnr_db']:.2f} |"
         )
     if result["preset_errors"]:
         kernels = list(next(iter(result["preset_errors"].values())))

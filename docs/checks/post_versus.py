@@ -31,7 +31,7 @@ from cvsss.core.io import checkpoint
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import scene_frame
 
-TIMING = {"pass_ms", "frame_ms"}
+TIMING = {"sampling_ms", "frame_ms"}
 
 
 def post(package: Path | None, passes: Path, out: Path, method: str) -> tuple[float, float]:

@@ -4,8 +4,8 @@ Processes frames 1–6 of the bench's flash sequence (``core.synthetic``: a stil
 scene whose light flashes) with one method and the compiled backend, then times
 ``process()`` on frame 7 ``CALLS`` times from the same processor state and
 prints, minimum and median over the calls: the whole call, the sampling step
-(``pass_ms``), the history step (``update_ms``) and the rest of the frame (the
-whole call minus ``pass_ms``, per call: geometry, counts, history reprojection
+(``sampling_ms``), the history step (``update_ms``) and the rest of the frame (the
+whole call minus ``sampling_ms``, per call: geometry, counts, history reprojection
 and update, composite and maps). Run from the repo root:
 
     .venv/bin/python docs/checks/steady_frame.py [WxH] [CALLS] [--method as_ccv] [--keep]
@@ -54,9 +54,9 @@ def main() -> None:
         t = time.perf_counter()
         res = proc.process(frame)
         total.append((time.perf_counter() - t) * 1e3)
-        sampling.append(res.pass_ms)
+        sampling.append(res.sampling_ms)
         update.append(res.update_ms)
-        rest.append(total[-1] - res.pass_ms)
+        rest.append(total[-1] - res.sampling_ms)
     print(f"{cvsss.__file__}: {a.method} {w}x{h}, {res.spp:.1f} spp (ms)")
     print(f"  frame {stats(total)} | sampling {stats(sampling)}")
     print(f"  history step {stats(update)} | outside the sampling step {stats(rest)}")

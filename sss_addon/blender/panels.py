@@ -133,7 +133,7 @@ class SSS_PT_render(_RenderPanel, Panel):
         if s.has_stats:
             box.label(text=f"Frame {s.last_frame} ({s.last_method})")
             box.label(text=f"Mean spp: {s.last_spp:.2f}")
-            box.label(text=f"Pass time: {s.last_pass_ms:.2f} ms")
+            box.label(text=f"Sampling time: {s.last_sampling_ms:.2f} ms")
             box.label(text=f"PSNR: {s.last_psnr:.2f} dB" if s.last_psnr > 0 else "PSNR: –")
             if s.last_psnr_gt > 0:
                 box.label(text=f"PSNR vs Cycles: {s.last_psnr_gt:.2f} dB")

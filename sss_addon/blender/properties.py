@@ -378,8 +378,8 @@ class SSSSettings(PropertyGroup):
         default=0.0,
         min=0.0,
     )
-    last_pass_ms: FloatProperty(
-        name="Pass Time",
+    last_sampling_ms: FloatProperty(
+        name="Sampling Time",
         description="Wall time of the Monte Carlo sampling step of the last frame (ms)",
         default=0.0,
         min=0.0,
@@ -552,7 +552,7 @@ def store_stats(
     frame: int,
     method: str,
     spp: float,
-    pass_ms: float,
+    sampling_ms: float,
     psnr_db: float | None,
     psnr_gt_db: float | None = None,
 ) -> None:
@@ -564,7 +564,7 @@ def store_stats(
     settings.last_frame = int(frame)
     settings.last_method = method
     settings.last_spp = float(spp)
-    settings.last_pass_ms = float(pass_ms)
+    settings.last_sampling_ms = float(sampling_ms)
     settings.last_psnr = _stat(psnr_db)
     settings.last_psnr_gt = _stat(psnr_gt_db)
     settings.has_stats = True

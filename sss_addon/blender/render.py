@@ -545,7 +545,13 @@ def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
         value = float(row["psnr_db"]) if row["psnr_db"] else None
         truth = float(row["psnr_gt_db"]) if row.get("psnr_gt_db") else None
         store_stats(
-            settings, step.frame, job.display, result.spp, result.pass_ms, value, psnr_gt_db=truth
+            settings,
+            step.frame,
+            job.display,
+            result.spp,
+            result.sampling_ms,
+            value,
+            psnr_gt_db=truth,
         )
 
 

@@ -129,7 +129,7 @@ def render_sequence(
     Returns
     -------
     list of dict
-        Metric rows (frame, method, spp, pass_ms, psnr_db and, with a ground
+        Metric rows (frame, method, spp, sampling_ms, psnr_db and, with a ground
         truth, its columns) as in metrics.csv.
 
     Raises

@@ -568,7 +568,7 @@ def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
     pts = par["points"]
     for ax, xkey, xlabel in (
-        (axes[0], "pass_ms", "mean sampling-pass time per frame (ms)"),
+        (axes[0], "sampling_ms", "mean sampling time per frame (ms)"),
         (axes[1], "spp", "mean samples per SSS pixel"),
     ):
         for method in dict.fromkeys(p["method"] for p in pts):
@@ -597,10 +597,10 @@ def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
                         lw=0.8,
                         alpha=0.6,
                     )
-        if xkey == "pass_ms":
-            front = sorted((p for p in pts if p["front"]), key=lambda p: p["pass_ms"])
+        if xkey == "sampling_ms":
+            front = sorted((p for p in pts if p["front"]), key=lambda p: p["sampling_ms"])
             ax.step(
-                [p["pass_ms"] for p in front],
+                [p["sampling_ms"] for p in front],
                 [p["psnr_db"] for p in front],
                 where="post",
                 color="k",
@@ -613,7 +613,7 @@ def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
                     continue  # calibration-only points: markers without labels
                 ax.annotate(
                     p["label"].replace("σ0²=", ""),
-                    (p["pass_ms"], p["psnr_db"]),
+                    (p["sampling_ms"], p["psnr_db"]),
                     fontsize=6,
                     xytext=(3, -8),
                     textcoords="offset points",
@@ -629,22 +629,22 @@ def _plot_pareto(plt: Any, par: dict, path: Path) -> Path:
 
 
 def _plot_pareto_backends(plt: Any, par: dict, path: Path) -> Path:
-    """PSNR against pass time of the Monte Carlo sweep, one panel per sampling backend."""
+    """PSNR against sampling time of the Monte Carlo sweep, one panel per sampling backend."""
     backends = list(par["by_backend"])
     fig, axes = plt.subplots(1, len(backends), figsize=(6 * len(backends), 4.8), squeeze=False)
     for ax, b in zip(axes[0], backends):
         pts = [p for p in par["by_backend"][b] if p["method"] != "separable"]
         for method in dict.fromkeys(p["method"] for p in pts):
-            mine = sorted((p for p in pts if p["method"] == method), key=lambda p: p["pass_ms"])
+            mine = sorted((p for p in pts if p["method"] == method), key=lambda p: p["sampling_ms"])
             ax.plot(
-                [p["pass_ms"] for p in mine],
+                [p["sampling_ms"] for p in mine],
                 [p["psnr_db"] for p in mine],
                 "o-",
                 color=_COLOURS.get(method),
                 label=method,
             )
-        front = sorted((p for p in pts if p["front"]), key=lambda p: p["pass_ms"])
-        ax.plot([p["pass_ms"] for p in front], [p["psnr_db"] for p in front], "k--", lw=1)
+        front = sorted((p for p in pts if p["front"]), key=lambda p: p["sampling_ms"])
+        ax.plot([p["sampling_ms"] for p in front], [p["psnr_db"] for p in front], "k--", lw=1)
         ax.set_xscale("log")
         ax.set_xlabel("sampling pass (ms)")
         ax.set_ylabel("PSNR vs 1024 spp (dB)")
@@ -751,12 +751,12 @@ def _plot_scaling(plt: Any, result: dict, path: Path) -> Path:
     if cov:
         ax = axes[1, 0]
         rows = cov["rows"]
-        _time_panel(ax, [r["sss_pixels"] / 1e3 for r in rows], rows, ("total_ms", "pass_ms"))
+        _time_panel(ax, [r["sss_pixels"] / 1e3 for r in rows], rows, ("total_ms", "sampling_ms"))
         if "eps_u" in cov:
             e = cov["eps_u"]
             ax.plot(
                 [e["default"]["distant_pixels"] / 1e3, e["raised"]["distant_pixels"] / 1e3],
-                [e["default"]["pass_ms"], e["raised"]["pass_ms"]],
+                [e["default"]["sampling_ms"], e["raised"]["sampling_ms"]],
                 "k*--",
                 ms=10,
                 label=f"scene, ε_u {e['default_eps_u']:g} → {e['eps_u']:.2f} "

@@ -146,7 +146,7 @@ def test_render_sequence_api_uses_current_scene(demo, tmp_path):
             "frame": 2,
             "method": "fixed",
             "spp": rows[0]["spp"],
-            "pass_ms": rows[0]["pass_ms"],
+            "sampling_ms": rows[0]["sampling_ms"],
             "frame_ms": rows[0]["frame_ms"],
             "psnr_db": "",
         }

@@ -99,7 +99,7 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
             for layer in layers:
                 np.testing.assert_array_equal(written[layer], again[layer], err_msg=layer)
     cli_rows = list(csv.DictReader(open(cli_out / "metrics.csv")))
-    drop = ("pass_ms", "frame_ms")
+    drop = ("sampling_ms", "frame_ms")
     assert [{k: v for k, v in r.items() if k not in drop} for r in rows] == [
         {k: v for k, v in r.items() if k not in drop} for r in cli_rows
     ]
@@ -124,7 +124,7 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
     # Statistics of the last frame.
     assert s.has_stats and s.last_frame == 3 and s.last_method == "as_ocv"
     assert s.last_spp == pytest.approx(res.spp)
-    assert s.last_pass_ms > 0
+    assert s.last_sampling_ms > 0
     assert s.last_psnr == pytest.approx(float(rows[-1]["psnr_db"]), abs=1e-3)
     assert 20 < s.last_psnr <= 100
     del ref

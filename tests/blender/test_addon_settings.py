@@ -330,7 +330,7 @@ def test_panels_draw(fresh):
     # preset, preset_scale; millimetres per unit from the scene's unit scale).
     assert flags - shown == {("ProfileChoice", "mm_per_unit"), ("ProfileChoice", "scale")}
     s = fresh.sss_settings
-    s.has_stats, s.last_spp, s.last_pass_ms, s.last_psnr = True, 12.5, 3.25, 48.0
+    s.has_stats, s.last_spp, s.last_sampling_ms, s.last_psnr = True, 12.5, 3.25, 48.0
     log.clear()
     panels.SSS_PT_render.draw(SimpleNamespace(layout=_Layout(log)), context)
     assert ("label", "Mean spp: 12.50") in log and ("label", "PSNR: 48.00 dB") in log

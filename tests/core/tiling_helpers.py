@@ -13,7 +13,7 @@ from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
 from cvsss.core.tiling import InlineExecutor, TiledProcessor, TileSession
 
-TIMINGS = ("pass_ms", "update_ms", "total_ms")
+TIMINGS = ("sampling_ms", "update_ms", "total_ms")
 W, H = 96, 64
 STEP = (3, 2)  # content moves this far (x, y) per frame
 

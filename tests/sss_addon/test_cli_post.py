@@ -42,7 +42,7 @@ def test_post_writes_results_and_metrics(passes, tmp_path):
     assert [r["method"] for r in rows[:3]] == ["reference", "as_ccv", "fixed"]
     assert len(rows) == 12
     for r in rows:
-        assert float(r["spp"]) >= 0 and float(r["pass_ms"]) >= 0
+        assert float(r["spp"]) >= 0 and float(r["sampling_ms"]) >= 0
         if r["method"] == "reference":
             assert float(r["psnr_db"]) == 100.0
         else:

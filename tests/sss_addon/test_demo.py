@@ -44,8 +44,8 @@ def test_summary_has_every_scene_and_method(small_demo):
     for scene, methods in summary.items():
         assert list(methods) == ["reference", *[m for m in demo.DEMO_METHODS if m != "reference"]]
         for method, v in methods.items():
-            assert {"spp", "pass_ms", "psnr_db", "spp_max"} <= set(v)
-            assert 0 <= v["spp"] <= v["spp_max"] and v["pass_ms"] > 0
+            assert {"spp", "sampling_ms", "psnr_db", "spp_max"} <= set(v)
+            assert 0 <= v["spp"] <= v["spp_max"] and v["sampling_ms"] > 0
             assert 15 < v["psnr_db"] <= 100, (scene, method)
         # fixed takes N = 64 where distant scattering is needed (gamma >= eps_u), 0 elsewhere
         assert 0 < methods["fixed"]["spp"] <= 64

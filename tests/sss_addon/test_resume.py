@@ -4,7 +4,7 @@ A sequence killed at frame k (SIGKILL of the real command, or a crash in the
 middle of writing an EXR) and rerun with ``--resume`` continues after each
 method's checkpoint (``<out>/<method>/.checkpoint.npz``) and ends bit-identical
 to an uninterrupted run: every EXR layer and header entry and every metrics
-row, except the wall-clock timings (``pass_ms``, ``update_ms``, ``total_ms``).
+row, except the wall-clock timings (``sampling_ms``, ``update_ms``, ``total_ms``).
 Existing outputs are never replaced without ``--overwrite``.
 """
 
@@ -29,7 +29,7 @@ from cvsss.core.run import CHECKPOINT_NAME
 from cvsss.core.synthetic import sequence
 from cvsss.sss_addon.cli import main as cli
 
-TIMINGS = ("cvsss.pass_ms", "cvsss.update_ms", "cvsss.total_ms")
+TIMINGS = ("cvsss.sampling_ms", "cvsss.update_ms", "cvsss.total_ms")
 FRAMES = 24
 ARGS = ("--method", "as_ocv,as_ccv", "--reference", "--reference-spp", "64", "--quiet")
 
@@ -57,7 +57,7 @@ def post_argv(passes: Path, out: Path, *extra: str, args=ARGS) -> list[str]:
 def metric_rows(out: Path) -> list[dict]:
     with open(out / "metrics.csv", newline="") as fh:
         return [
-            {k: v for k, v in row.items() if k not in ("pass_ms", "frame_ms")}
+            {k: v for k, v in row.items() if k not in ("sampling_ms", "frame_ms")}
             for row in csv.DictReader(fh)
         ]
 

@@ -370,7 +370,9 @@ class Session:
         if not self.still:
             self.undelivered.append(frame)
         show_result(result)
-        store_stats(self.scene.sss_settings, frame, self.method, result.spp, result.pass_ms, None)
+        store_stats(
+            self.scene.sss_settings, frame, self.method, result.spp, result.sampling_ms, None
+        )
         seconds = time.perf_counter() - began
         return f"frame {frame} {self.method}: spp {result.spp:.2f}, post {seconds:.2f} s"
 

@@ -30,7 +30,7 @@ def nanmean(values: Sequence[float]) -> float:
 def summarize(rows: Sequence[dict]) -> dict:
     """Per method, the means of a scene's metric rows (see core.run for the columns).
 
-    ``pass_ms`` is the mean of the 3rd-order median-filtered per-frame times
+    ``sampling_ms`` is the mean of the 3rd-order median-filtered per-frame times
     (P Sec. 7); every other mean skips frames without the figure: ``psnr_db``
     (self-referenced), ``psnr_gt_db`` / ``psnr_gt_full_db`` / ``rim_ratio`` /
     ``rim_outer_ratio`` / ``rim_contact_ratio`` / ``ratio`` (against Cycles ground truth), ``flicker``, ``psnr_switch_db``
@@ -44,14 +44,14 @@ def summarize(rows: Sequence[dict]) -> dict:
     out = {}
     for method, rs in by.items():
         spp = np.array([float(r["spp"]) for r in rs])
-        ms = median3(np.array([float(r["pass_ms"]) for r in rs]))
+        ms = median3(np.array([float(r["sampling_ms"]) for r in rs]))
         switch = [r for r in rs if r.get("light_change") and float(r["light_change"]) >= SWITCH]
         gt_rows = [r for r in rs if r.get("psnr_gt_db")]
         out[method] = {
             "spp": float(spp.mean()),
             "spp_max": float(spp.max()),
             "spp_median": float(np.median(spp)),
-            "pass_ms": float(ms.mean()),
+            "sampling_ms": float(ms.mean()),
             "frame_ms": nanmean(floats(rs, "frame_ms")),
             "psnr_db": nanmean(floats(rs, "psnr_db")),
             "psnr_gt_db": nanmean(floats(rs, "psnr_gt_db")),

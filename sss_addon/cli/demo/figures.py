@@ -3,10 +3,10 @@
 Reads ``<scene>/metrics.csv`` and the result EXRs written by ``cvsss post`` /
 ``cvsss demo`` and writes PNGs next to the report:
 
-- ``<scene>_frames.png``: spp, sampling-pass time and PSNR per frame for AS,
+- ``<scene>_frames.png``: spp, sampling time and PSNR per frame for AS,
   AS+OCV and AS+CCV (the paper's Fig. 8);
 - ``<scene>_strip.png``: a strip of frames, composite above sample-count map;
-- ``pareto.png``: PSNR against pass time of every method and scene;
+- ``pareto.png``: PSNR against sampling time of every method and scene;
 - ``<scene>_preview_####.png``: composite and sample-count map side by side.
 
 Composites are shown display-referred (exposure, sRGB, clipped); sample-count
@@ -45,21 +45,21 @@ def _pyplot():
 
 
 def read_metrics(path: Path) -> dict[str, dict[str, np.ndarray]]:
-    """``{method: {"frame", "spp", "pass_ms", "psnr_db", "psnr_gt_db"}}`` arrays (NaN: absent)."""
+    """``{method: {"frame", "spp", "sampling_ms", "psnr_db", "psnr_gt_db"}}`` arrays (NaN: absent)."""
     cols: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
     with open(path, newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
             c = cols[row["method"]]
             c["frame"].append(int(row["frame"]))
             c["spp"].append(float(row["spp"]))
-            c["pass_ms"].append(float(row["pass_ms"]))
+            c["sampling_ms"].append(float(row["sampling_ms"]))
             for key in ("psnr_db", "psnr_gt_db"):
                 c[key].append(float(row[key]) if row.get(key) else np.nan)
     return {m: {k: np.asarray(v) for k, v in c.items()} for m, c in cols.items()}
 
 
 def plot_frames(metrics: dict, path: Path, title: str) -> Path:
-    """Per-frame spp, pass time (3rd-order median), PSNR against our reference and
+    """Per-frame spp, sampling time (3rd-order median), PSNR against our reference and
     (when rendered) against Cycles ground truth, of the adaptive methods and baselines."""
     plt = _pyplot()
     with_gt = any(np.isfinite(m["psnr_gt_db"]).any() for m in metrics.values())
@@ -71,7 +71,7 @@ def plot_frames(metrics: dict, path: Path, title: str) -> Path:
         m = metrics[name]
         if (name, label) in ADAPTIVE:
             axes[0].plot(m["frame"], m["spp"], label=label)
-            axes[1].plot(m["frame"], median3(m["pass_ms"]), label=label)
+            axes[1].plot(m["frame"], median3(m["sampling_ms"]), label=label)
         ok = np.isfinite(m["psnr_db"])
         style = "--" if (name, label) in BASELINES else ".-"
         axes[2].plot(m["frame"][ok], m["psnr_db"][ok], style, label=label)
@@ -153,7 +153,7 @@ def plot_preview(
 
 
 def plot_pareto(summary: dict, path: Path) -> Path:
-    """PSNR against mean sampling-pass time for every method and scene."""
+    """PSNR against mean sampling time for every method and scene."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     markers = "os^vDP*X"
@@ -164,7 +164,7 @@ def plot_pareto(summary: dict, path: Path) -> Path:
             if v is None or not np.isfinite(v["psnr_db"]):
                 continue
             ax.scatter(
-                v["pass_ms"],
+                v["sampling_ms"],
                 v["psnr_db"],
                 marker=markers[j % len(markers)],
                 color=f"C{i}",

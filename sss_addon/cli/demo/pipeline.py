@@ -258,7 +258,7 @@ def quality_against_truth(
 
     Each σ0² runs the whole sequence (its history needs every frame) into
     ``<scene>/quality/<σ0²>/``; a row holds the mean spp over all frames, the
-    sampling-pass time and the mean PSNR against the ground truth on the
+    sampling time and the mean PSNR against the ground truth on the
     ground-truth frames after the first (warm history), next to the demo's own
     as_ccv run at the default σ0². Sorted by σ0², largest first.
     """
@@ -271,7 +271,7 @@ def quality_against_truth(
         return {
             "sigma0_sq": sigma,
             "spp": nanmean(floats(mine, "spp")),
-            "pass_ms": nanmean(floats(mine, "pass_ms")),
+            "sampling_ms": nanmean(floats(mine, "sampling_ms")),
             "psnr_gt_warm_db": nanmean(floats(gt, "psnr_gt_db")),
         }
 

@@ -20,17 +20,17 @@ from .targets import check_targets, check_temporal_targets, check_truth_targets,
 PAPER_TABLE3 = {
     "flash": {
         "spp": (61.97, 29.58, 26.88),
-        "pass_ms": (1.47, 0.80, 0.75),
+        "sampling_ms": (1.47, 0.80, 0.75),
         "psnr_db": (51.19, 49.55, 49.43),
     },
     "regular": {
         "spp": (26.51, 18.32, 17.82),
-        "pass_ms": (3.39, 2.55, 2.58),
+        "sampling_ms": (3.39, 2.55, 2.58),
         "psnr_db": (47.85, 47.57, 47.55),
     },
     "dynamic": {
         "spp": (22.01, 14.70, 14.13),
-        "pass_ms": (2.02, 1.54, 1.52),
+        "sampling_ms": (2.02, 1.54, 1.52),
         "psnr_db": (50.62, 49.11, 49.11),
     },
 }
@@ -38,7 +38,7 @@ PAPER_TABLE3 = {
 
 def measured_table(summary: dict) -> str:
     lines = [
-        "| scene | method | mean spp | max spp | pass ms | PSNR dB (self) "
+        "| scene | method | mean spp | max spp | sampling ms | PSNR dB (self) "
         "| PSNR dB (vs Cycles GT) | GT whole image | rim ratio (outer / contact) | flicker |",
         "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
@@ -46,7 +46,7 @@ def measured_table(summary: dict) -> str:
         for m, v in methods.items():
             lines.append(
                 f"| {scene} | {m} | {v['spp']:.2f} | {v['spp_max']:.2f} | "
-                f"{v['pass_ms']:.2f} | {v['psnr_db']:.2f} | {v.get('psnr_gt_db', math.nan):.2f} | "
+                f"{v['sampling_ms']:.2f} | {v['psnr_db']:.2f} | {v.get('psnr_gt_db', math.nan):.2f} | "
                 f"{v.get('psnr_gt_full_db', math.nan):.2f} | {v.get('rim_ratio', math.nan):.3f} "
                 f"({v.get('rim_outer_ratio', math.nan):.3f} / "
                 f"{v.get('rim_contact_ratio', math.nan):.3f}) | "
@@ -82,13 +82,13 @@ def write_report(
         "",
         "## The paper's Table 3 (UE4, 2560×1440, RTX 2080 Ti), AS / +OCV / +CCV",
         "",
-        "| scene | spp | pass ms | PSNR dB |",
+        "| scene | spp | sampling ms | PSNR dB |",
         "| --- | --- | --- | --- |",
     ]
     for scene, v in PAPER_TABLE3.items():
         lines.append(
             f"| {scene} | {' / '.join(map(str, v['spp']))} | "
-            f"{' / '.join(map(str, v['pass_ms']))} | {' / '.join(map(str, v['psnr_db']))} |"
+            f"{' / '.join(map(str, v['sampling_ms']))} | {' / '.join(map(str, v['psnr_db']))} |"
         )
     lines += [
         "",
@@ -162,7 +162,7 @@ def write_report(
                 lines += [f"### {text}", "", f"![{text}]({name})", ""]
     if (out / "pareto.png").exists():
         lines += [
-            "### PSNR against sampling-pass time, every method",
+            "### PSNR against sampling time, every method",
             "",
             "![pareto](pareto.png)",
             "",
@@ -179,12 +179,12 @@ def write_report(
 def format_quality(rows: Sequence[dict]) -> str:
     """Markdown table of :func:`quality_against_truth`."""
     lines = [
-        "| σ0² | mean spp | pass ms | PSNR vs Cycles GT, warm frames (dB) |",
+        "| σ0² | mean spp | sampling ms | PSNR vs Cycles GT, warm frames (dB) |",
         "| ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         lines.append(
-            f"| {r['sigma0_sq']:g} | {r['spp']:.1f} | {r['pass_ms']:.1f} | "
+            f"| {r['sigma0_sq']:g} | {r['spp']:.1f} | {r['sampling_ms']:.1f} | "
             f"{r['psnr_gt_warm_db']:.2f} |"
         )
     return "\n".join(lines)
@@ -238,7 +238,7 @@ def header_lines(
     truth: TruthPlan | None,
 ) -> list[str]:
     """The lines at the top of report.md: where the passes came from, the parameters, and
-    how PSNR and the pass time were measured."""
+    how PSNR and the sampling time were measured."""
     if source == "blender":
         what = f"{engine.title()} passes of the demo_blend scenes ({samples} samples per pixel" + (
             ", fixed seed), " if engine == "CYCLES" else "), "
@@ -258,7 +258,7 @@ def header_lines(
             else f"{_ordinal(reference_every)} frame (frames 1, {1 + reference_every}, …)"
         )
         + ", display-referred.",
-        f"pass ms: the sampling step on this machine ({mc_backend.describe(params.backend)}), "
+        f"sampling ms: the Monte Carlo sampling step on this machine ({mc_backend.describe(params.backend)}), "
         f"3rd-order median over frames; sample kernel: {params.distance}.",
     ]
     if truth is not None:

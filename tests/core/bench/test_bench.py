@@ -43,9 +43,9 @@ def smoke():
 def _dominated(p: dict, q: dict) -> bool:
     """q is at least as fast and as good as p, and strictly better in one."""
     return (
-        q["pass_ms"] <= p["pass_ms"]
+        q["sampling_ms"] <= p["sampling_ms"]
         and q["psnr_db"] >= p["psnr_db"]
-        and (q["pass_ms"] < p["pass_ms"] or q["psnr_db"] > p["psnr_db"])
+        and (q["sampling_ms"] < p["sampling_ms"] or q["psnr_db"] > p["psnr_db"])
     )
 
 
@@ -80,39 +80,41 @@ def test_linear_fit_of_constant_data_is_nan():
 
 def test_pareto_front_is_exactly_the_non_dominated_points():
     pts = [
-        {"pass_ms": 1.0, "psnr_db": 30.0},  # 0 front
-        {"pass_ms": 2.0, "psnr_db": 20.0},  # 1 dominated by 0
-        {"pass_ms": 2.0, "psnr_db": 35.0},  # 2 front
-        {"pass_ms": 3.0, "psnr_db": 35.0},  # 3 as good as 2 but slower
-        {"pass_ms": 3.0, "psnr_db": 40.0},  # 4 front
-        {"pass_ms": 5.0, "psnr_db": 39.0},  # 5 dominated by 4
-        {"pass_ms": 1.0, "psnr_db": 25.0},  # 6 as fast as 0 but worse
+        {"sampling_ms": 1.0, "psnr_db": 30.0},  # 0 front
+        {"sampling_ms": 2.0, "psnr_db": 20.0},  # 1 dominated by 0
+        {"sampling_ms": 2.0, "psnr_db": 35.0},  # 2 front
+        {"sampling_ms": 3.0, "psnr_db": 35.0},  # 3 as good as 2 but slower
+        {"sampling_ms": 3.0, "psnr_db": 40.0},  # 4 front
+        {"sampling_ms": 5.0, "psnr_db": 39.0},  # 5 dominated by 4
+        {"sampling_ms": 1.0, "psnr_db": 25.0},  # 6 as fast as 0 but worse
     ]
     assert pareto.pareto_front(pts) == [0, 2, 4]
 
 
 def test_pareto_front_agrees_with_brute_force_on_random_points(rng):
     for _ in range(5):
-        pts = [{"pass_ms": float(t), "psnr_db": float(p)} for t, p in rng.random((60, 2))]
+        pts = [{"sampling_ms": float(t), "psnr_db": float(p)} for t, p in rng.random((60, 2))]
         expected = {i for i, p in enumerate(pts) if not any(_dominated(p, q) for q in pts)}
         front = pareto.pareto_front(pts)
         assert set(front) == expected
-        assert [pts[i]["pass_ms"] for i in front] == sorted(pts[i]["pass_ms"] for i in front)
+        assert [pts[i]["sampling_ms"] for i in front] == sorted(
+            pts[i]["sampling_ms"] for i in front
+        )
 
 
 def test_fixed_time_at_interpolates_log_time_and_extrapolates():
     pts = [
-        {"method": "fixed", "pass_ms": 10.0, "psnr_db": 40.0},
-        {"method": "fixed", "pass_ms": 100.0, "psnr_db": 50.0},
-        {"method": "as_ccv", "pass_ms": 20.0, "psnr_db": 48.0},
-        {"method": "as", "pass_ms": 120.0, "psnr_db": 49.0},
+        {"method": "fixed", "sampling_ms": 10.0, "psnr_db": 40.0},
+        {"method": "fixed", "sampling_ms": 100.0, "psnr_db": 50.0},
+        {"method": "as_ccv", "sampling_ms": 20.0, "psnr_db": 48.0},
+        {"method": "as", "sampling_ms": 120.0, "psnr_db": 49.0},
     ]
     t, extra = pareto.fixed_time_at(pts, 45.0)
     assert t == pytest.approx(math.sqrt(10.0 * 100.0)) and not extra
     t, extra = pareto.fixed_time_at(pts, 55.0)
     assert t == pytest.approx(100.0 * math.sqrt(10.0)) and extra
     # A slower fixed point that is worse than a faster one does not count.
-    slow = [*pts, {"method": "fixed", "pass_ms": 1000.0, "psnr_db": 45.0}]
+    slow = [*pts, {"method": "fixed", "sampling_ms": 1000.0, "psnr_db": 45.0}]
     assert pareto.fixed_time_at(slow, 45.0)[0] == pytest.approx(100.0)
     assert math.isnan(pareto.fixed_time_at(pts[:1], 45.0)[0])
 
@@ -287,7 +289,7 @@ def test_smoke_cost_figures_are_the_recorded_ratios(smoke):
     assert set(rows) == set(config.COST_METHODS)
     for method, row in rows.items():
         assert row["samples"] > 0, method
-        assert row["ns_per_sample"] == pytest.approx(row["pass_ms"] * 1e6 / row["samples"])
+        assert row["ns_per_sample"] == pytest.approx(row["sampling_ms"] * 1e6 / row["samples"])
         assert row["ratio_to_gather"] == pytest.approx(
             row["ns_per_sample"] / row["gather_ns_per_sample"]
         )
@@ -336,7 +338,7 @@ def test_smoke_pareto_per_backend_same_samples_other_times(smoke):
         a, b = numba_pts[label], numpy_pts[label]
         assert a["spp"] == b["spp"], label
         assert a["psnr_db"] == pytest.approx(b["psnr_db"], abs=1e-3), label
-        assert a["pass_ms"] > 0 and b["pass_ms"] > 0
+        assert a["sampling_ms"] > 0 and b["sampling_ms"] > 0
     for pts in by.values():
         assert any(p["front"] for p in pts)
         front = [p for p in pts if p["front"]]
@@ -375,7 +377,7 @@ def test_smoke_coverage_and_resolution_rows(smoke):
     assert [row["pixels"] for row in res] == [32 * 18, 64 * 36]
     for row in res:
         assert row["ns_per_pixel"] == pytest.approx(row["total_ms"] * 1e6 / row["pixels"])
-        assert row["ns_per_sample"] == pytest.approx(row["pass_ms"] * 1e6 / row["samples"])
+        assert row["ns_per_sample"] == pytest.approx(row["sampling_ms"] * 1e6 / row["samples"])
 
 
 def test_smoke_rss_table_follows_the_measured_specs(smoke):

@@ -133,7 +133,7 @@ def make_result(height: int = 5, width: int = 4, seed: int = 1) -> FrameResult:
         mask=rng.uniform(size=(height, width)) < 0.7,
         spp=np.float64(3.25),
         samples=1234,
-        pass_ms=1.5,
+        sampling_ms=1.5,
         update_ms=0.25,
         total_ms=2.0,
         distant_share=0.5,

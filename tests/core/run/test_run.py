@@ -85,7 +85,7 @@ def test_warm_up_is_part_of_the_signature_only_when_used():
 
 
 # -- writing in the background ------------------------------------------------------------------
-TIMING = {"pass_ms", "frame_ms"}
+TIMING = {"sampling_ms", "frame_ms"}
 BACKGROUND_SPEC = RunSpec(("as_ccv", "as_ocv_t", "fixed", "reference"), PARAMS, reference_every=2)
 
 
@@ -102,7 +102,7 @@ def _same_files(a, b):
             x, y = read_result(a / name), read_result(b / name)
             for layer in set(x) - {"header"}:
                 np.testing.assert_array_equal(x[layer], y[layer])
-            untimed = {f"cvsss.{k}" for k in ("pass_ms", "update_ms", "total_ms")}
+            untimed = {f"cvsss.{k}" for k in ("sampling_ms", "update_ms", "total_ms")}
             assert {k: v for k, v in x["header"].items() if k not in untimed} == {
                 k: v for k, v in y["header"].items() if k not in untimed
             }

@@ -207,7 +207,7 @@ def test_frame_result_and_determinism():
     assert res.method == "separable" and res.spp == 44.0
     assert np.all(res.counts[res.mask] == 44) and np.all(res.counts[~res.mask] == 0)
     assert res.samples == 44 * int(res.mask.sum())
-    assert np.all(res.alpha == 0) and res.pass_ms > 0
+    assert np.all(res.alpha == 0) and res.sampling_ms > 0
     ref_gamma = make_processor("fixed", SSSParams()).process(frame).gamma
     assert np.array_equal(res.gamma, ref_gamma)
     off = ~res.mask
