@@ -1,5 +1,6 @@
 """Settings, material panel data, registration and the demo builder in real Blender."""
 
+import json
 import math
 
 import numpy as np
@@ -88,8 +89,21 @@ def test_quality_picks_the_calibrated_parameters(fresh, monkeypatch):
     s.target_variance = 0.5  # ignored once a quality target is set
     s.quality = "PSNR"
     s.quality_psnr = 45.0
-    expected, _ = quality.apply(SSSParams(), "45dB", "as_ccv")
-    assert settings_to_params(s) == expected and expected.target_variance != 0.5
+    # Expected from the shipped calibration itself: σ0² where as_ccv's measured PSNR curve
+    # (log-linear between its points) reaches 45 dB, in the family of the largest β_min
+    # that reaches it.
+    data = json.loads(quality.CALIBRATION_PATH.read_text())
+    families = sorted(
+        data["methods"]["as_ccv"]["families"], key=lambda f: -f.get("fixed", {}).get("beta_min", 0)
+    )
+    family = next(f for f in families if min(f["psnr_db"]) <= 45.0 <= max(f["psnr_db"]))
+    order = np.argsort(family["psnr_db"])
+    log_sigma = np.interp(
+        45.0, np.asarray(family["psnr_db"])[order], np.log10(family["values"])[order]
+    )
+    got = settings_to_params(s)
+    assert got.target_variance == pytest.approx(10**log_sigma, rel=1e-3)
+    assert got.beta_min == family.get("fixed", {}).get("beta_min", SSSParams().beta_min)
     s.quality = "SPP"
     s.quality_spp = 12.0
     low = settings_to_params(s)
