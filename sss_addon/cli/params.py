@@ -58,7 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             elif f.type in ("bool", bool):
                 kwargs.update(type=_bool, nargs="?", const=True, metavar="BOOL")
             else:
-                kwargs["type"] = int if f.type in ("int", "int | None") else float
+                integer = f.type in ("int", "int | None")
+                kwargs["type"] = int if integer else float
+                kwargs["metavar"] = "N" if integer else "X"
             arguments.add_argument(f"--{flag}", **kwargs)
         if cls is ProfileChoice:
             material = next(s for f, s in specs(ProfileChoice) if f.name == "material")
