@@ -104,10 +104,16 @@ wheels/%.whl: | $(STAMP)
 		"$(word 1,$(subst -, ,$*))==$(word 2,$(subst -, ,$*))" --dest wheels
 	@test -f $@ || (echo "error: pip did not fetch $@ (see wheels/)" >&2; exit 1)
 
+# The zip of the platform `make extension` runs on also carries the numba passes compiled
+# for that platform's CPU models (core/backends/shipped.py: x86-64-v3 and generic on
+# x86-64; 1-1.5 min of CPU each): installed, the first render loads them instead of
+# compiling. Run it on each platform for that platform's zip.
 extension: wheels | $(STAMP)
-	@mkdir -p dist
-	rm -f dist/cvsss-$(EXT_VERSION)-*.zip
+	@mkdir -p dist build
+	rm -rf dist/cvsss-$(EXT_VERSION)-*.zip build/shipped_passes
 	$(BIN)/python $(BLENDER_EXT) build --split-platforms --source-dir . --output-dir dist
+	$(BIN)/python tools/ship_passes.py build . build/shipped_passes
+	$(BIN)/python tools/ship_passes.py add build/shipped_passes dist/cvsss-$(EXT_VERSION)-*.zip
 	@for z in dist/cvsss-$(EXT_VERSION)-*.zip; do \
 		$(BIN)/python $(BLENDER_EXT) validate $$z || exit 1; \
 	done

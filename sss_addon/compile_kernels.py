@@ -9,7 +9,8 @@ With ``pixels`` (the job's frame size, H·W) it first compiles what frames of
 that size take and prints ``{"ready": s}``, the moment the job may load them,
 then goes on with the rest. Every kernel compiled, it stamps the cache
 complete and prints ``{"seconds": s}``; on failure ``{"error": "..."}``. It
-runs at low priority and never imports bpy.
+runs at low priority when no job waits for it (no ``pixels``), and never
+imports bpy.
 """
 
 import importlib
@@ -26,10 +27,11 @@ def main() -> None:
     # Run as a script, this folder came first on sys.path: its modules are not top-level.
     if sys.path and os.path.abspath(sys.path[0]) == os.path.dirname(os.path.abspath(__file__)):
         del sys.path[0]
-    try:
-        os.nice(10)  # POSIX; on Windows the parent sets a lower priority class
-    except (AttributeError, OSError):
-        pass
+    if pixels is None:  # nobody waits (the add-on registered): below the UI's priority
+        try:
+            os.nice(10)  # POSIX; on Windows the parent sets a lower priority class
+        except (AttributeError, OSError):
+            pass
     try:
         parts = package.split(".")
         for i in range(1, len(parts)):  # e.g. bl_ext, bl_ext.user_default: empty parents

@@ -25,13 +25,15 @@ threading layer aborts the process when two threads launch parallel regions
 at once.
 
 A process of its own can compile beside Blender: :func:`start_background`
-runs ``compile_kernels.py`` on Blender's Python at low priority when the cache
-is not complete (``core.backends.cache.is_complete``). The add-on starts it
-when it registers in Blender's UI (installed, updated, or Blender opened), so
+runs ``compile_kernels.py`` on Blender's Python when the cache is not complete
+(``core.backends.cache.is_complete``; an extension that ships its compiled passes,
+``core.backends.shipped``, has them). The add-on starts it when it registers
+in Blender's UI (installed, updated, or Blender opened), at low priority, so
 that the minute passes while the user works, and every render job starts it
-before Blender renders the first frame, with its frame size, whose build the
-process compiles first. :func:`ensure_compiled` then waits until the process has what
-the job needs (or has failed), and loads it from the cache.
+before Blender renders the first frame, at normal priority (the job waits for
+it), with its frame size, whose build the process compiles first.
+:func:`ensure_compiled` then waits until the process has what the job needs (or
+has failed), and loads it from the cache.
 ``CVSSS_BACKGROUND_COMPILE=0`` turns it off.
 """
 
@@ -50,7 +52,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ..core.backends import cache as numba_cache
-from ..core.backends import select
+from ..core.backends import select, shipped
 from ..core.backends.compile import compile_all
 from ..core.methods import METHODS
 
@@ -71,8 +73,14 @@ _background: dict = {}
 def compiled_ready(requested: str, methods: Sequence[str]) -> bool:
     """Whether frames of ``methods`` on backend ``requested`` can be processed without
     :func:`ensure_compiled` compiling first: NumPy, no method that samples (``none``,
-    ``separable``), or the kernels already compiled (or loaded) in this process."""
-    return _nothing_to_compile(requested, methods) or not select.compiled(requested)
+    ``separable``), the kernels already compiled (or loaded) in this process, or
+    shipped with the extension (``core.backends.shipped``: each loads in tens of
+    milliseconds when first called, only the ones the job's methods call)."""
+    return (
+        _nothing_to_compile(requested, methods)
+        or shipped.shipped()
+        or not select.compiled(requested)
+    )
 
 
 def _nothing_to_compile(requested: str, methods: Sequence[str]) -> bool:
@@ -131,8 +139,8 @@ def start_background(
     log: Callable[[str], None] | None = None,
     pixels: int | None = None,
 ) -> bool:
-    """Start compiling the kernels into the disk cache in a low-priority process of their
-    own (``compile_kernels.py``); whether one started.
+    """Start compiling the kernels into the disk cache in a process of their own
+    (``compile_kernels.py``; at low priority without ``pixels``); whether one started.
 
     ``pixels``: the job's frame size (H·W), whose kernels the process compiles
     first (:func:`ensure_compiled` waits for those only); None: all, in their order.
@@ -165,8 +173,10 @@ def _start(requested, methods, log, pixels) -> bool:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
     flags = 0
-    if sys.platform == "win32":  # no console window; below the UI's priority
-        flags = subprocess.CREATE_NO_WINDOW | subprocess.BELOW_NORMAL_PRIORITY_CLASS
+    if sys.platform == "win32":  # no console window; below the UI's priority when idle
+        flags = subprocess.CREATE_NO_WINDOW
+        if pixels is None:
+            flags |= subprocess.BELOW_NORMAL_PRIORITY_CLASS
     size = [] if pixels is None else [str(int(pixels))]
     process = subprocess.Popen(
         [sys.executable, str(CHILD), str(root), package, *size],

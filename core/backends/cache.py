@@ -6,7 +6,8 @@ that directory is read-only (an installed extension, a system site-packages)
 (:func:`use_writable_cache`), unless the user set it. A compile of every pass
 leaves a stamp there (:func:`is_complete`), so that a later process can tell,
 without importing numba, that the cache is complete for this source, Python and
-numba.
+numba. An extension built by ``make extension`` ships the passes compiled
+(:mod:`.shipped`): they load from there first, and count as complete.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from importlib import metadata
 from pathlib import Path
 
 from ..io.atomic import write_text
+from . import shipped
 
 #: The folder of the compiled passes' sources (``core/backends/numba``).
 SOURCES = Path(__file__).resolve().parent / "numba"
@@ -61,7 +63,11 @@ def is_complete() -> bool:
 
     Does not import numba. False when numba is not installed. A cache that numba
     nevertheless finds stale (another CPU, say) is compiled again by the next compile.
+    True also where the extension ships the passes compiled for these sources, Python,
+    numba and platform (:func:`core.backends.shipped.shipped`).
     """
+    if shipped.shipped():
+        return True
     try:
         return json.loads((location() / STAMP).read_text()) == stamp()
     except (OSError, ValueError, metadata.PackageNotFoundError):

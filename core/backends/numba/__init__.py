@@ -15,7 +15,13 @@ surface), :mod:`.region` (the Burley distant region), :mod:`.adaptive` (SPVG),
 helpers and :mod:`.compile` compiles them all.
 
 Compiled code is cached on disk (numba's ``cache=True``; :mod:`core.backends.cache`
-chooses where).
+chooses where). An extension built by ``make extension`` ships them compiled
+(:mod:`core.backends.shipped`): importing this package imports every domain and
+points its passes at the shipped build first.
 """
 
 import numba  # noqa: F401  (fails here, not inside a pass, where numba is missing)
+
+from .. import shipped
+
+shipped.attach(__name__)

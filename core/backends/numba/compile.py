@@ -8,11 +8,19 @@ from __future__ import annotations
 import numpy as np
 
 from ...sampling.qmc import DIRECTIONS
-from .adaptive import _counts_pass, _update_pass
+from .adaptive import spvg_counts, spvg_update
 from .history import _history_pass, fetch, read_column, reproject_map, write_column
 from .image import _composite_pass, _float_image_pass
 from .region import _region
-from .sampling import PLANAR, build_for, pixel_sums, pixel_sums_serial, relight, tile_order
+from .sampling import (
+    PLANAR,
+    build_for,
+    pixel_sums,
+    pixel_sums_serial,
+    relight,
+    texels,
+    tile_order,
+)
 from .separable import separable_pass_exp, separable_pass_slope
 from .surface import surface_arrays
 from .temporal import MULTIPLICATIVE, neighbour_table, neighbourhood_pass, reuse_finish, reuse_start
@@ -32,14 +40,21 @@ def compile_all(pixels: int | None = None) -> None:
     for fn in builds:
         _compile_sampling(fn)
     tile_order(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)
-    relight(np.ones((1, 3), np.float32), np.ones(8, np.float32))
+    f32 = np.float32
+    texel = texels(  # the sampling step's first call on a Geometry
+        np.ones((1, 3), f32), np.ones(1, f32), np.ones(1, f32), np.zeros((1, 3), f32),
+        np.zeros(1, np.int32), True,
+    )  # fmt: skip
+    relight(np.ones((1, 3), f32), texel)
     depth = np.full((2, 2), 2.0, np.float32)
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
         surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
     _region(np.ones(1), np.zeros(1, np.int64), np.ones((1, 3)), 8.0, 0.01, np.empty((4, 1, 3)))
     one, yes = np.ones(1), np.ones(1, np.bool_)
-    _counts_pass(one, one, yes, one, 1e-4, 64.0, 6.0, 0.1, 8.0, 64.0, 0.01, np.empty(1, np.int32))
-    _update_pass(one, one, one, yes, one, one, 0.75, 0.1875, 0.25, 1e-4, 64.0, np.empty((3, 1)))
+    # Through their wrappers: the passes take read-only broadcast views (_flat), a
+    # specialisation of their own.
+    spvg_counts(one, one, yes, one, 1e-4, 64.0, 0.25, 0.1, 8.0, 64.0, 0.01)
+    spvg_update(one, one, one, yes, one, one, 0.25, 1e-4, 64.0)
     one32, at0, g3 = np.ones(1, np.float32), np.zeros(1, np.int64), np.ones((1, 3))
     _history_pass(
         one32, one32.copy(), one32.copy(), *(one32.copy() for _ in range(5)), yes.copy(),
@@ -59,7 +74,6 @@ def compile_all(pixels: int | None = None) -> None:
     # The separable passes (the separable method, the temporal proxy) and the temporal
     # reuse's neighbourhood and per-pixel steps, in the argument types
     # core.separable.apply and core.mc.temporal pass.
-    f32 = np.float32
     pix = (at, at, at, np.ones(1, np.int32), one32, at, at, one32)
     tables = (np.ones(1, f32), np.ones(1, np.int32), np.zeros((2, 3)), np.zeros((2, 3)))
     for build in (separable_pass_slope, separable_pass_exp):

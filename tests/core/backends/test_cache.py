@@ -60,6 +60,7 @@ def test_a_full_compile_stamps_the_cache_for_these_sources(tmp_path, monkeypatch
     assert stamp["source"]["sampling.py"] == [sampling.st_mtime_ns, sampling.st_size]
     assert (stamp["python"], stamp["numba"]) == (sys.version, numba.__version__)
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CVSSS_SHIPPED_PASSES", "0")  # an extension's shipped passes count too
     assert not cache.is_complete()  # nothing there
     touched = {**stamp["source"], "sampling.py": [sampling.st_mtime_ns + 1, sampling.st_size]}
     for other, complete in [
@@ -108,3 +109,37 @@ def test_compile_for_a_frame_size_loads_the_build_it_takes(pixels, build):
     from cvsss.core.backends.numba import sampling
 
     assert sampling.build_for(0, pixels) is getattr(sampling, build)
+
+
+def test_a_full_compile_prepares_every_specialisation_the_methods_call():
+    """After ``compile_all()`` no method compiles anything: every pass, in the argument
+    types the methods pass it, is among the compile's (what the background compile and
+    the shipped passes hold), for still scenes and moving ones."""
+    code = textwrap.dedent(
+        """
+        import json, pkgutil, importlib, numba
+        from cvsss.core import synthetic
+        from cvsss.core.backends import cache
+        from cvsss.core.backends.compile import compile_all
+        from cvsss.core.methods import METHODS, make_processor
+        from cvsss.core.params import SSSParams
+        compile_all()
+        passes = {id(v): v for info in pkgutil.iter_modules([str(cache.SOURCES)])
+                  for v in vars(importlib.import_module(
+                      "cvsss.core.backends.numba." + info.name)).values()
+                  if isinstance(v, numba.core.registry.CPUDispatcher)}.values()
+        before = {id(k): set(k.overloads) for k in passes}
+        for name in METHODS:
+            for frames in (synthetic.sequence("flash", 2, 96, 54),
+                           (synthetic.moving_frame(n, 96, 54) for n in (1, 2))):
+                proc = make_processor(name, SSSParams(backend="numba"))
+                for frame in frames:
+                    proc.process(frame)
+        print(json.dumps(sorted(f"{k.py_func.__name__}{list(sig)}" for k in passes
+                                for sig in set(k.overloads) - before[id(k)])))
+        """
+    )
+    compile_all()  # compiles (and writes the cache) if nothing did yet
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == []
