@@ -2,7 +2,8 @@
 
 Never imports ``bpy``: everything here runs and is tested without Blender.
 References: Xie & Olano 2021 (P), Xie's defense slides (D), Jimenez et al.
-2015 supplementary (S); see ``shared/SPEC.md``.
+2015 supplementary (S); the design, in the repository's own words, is
+docs/explanation/design.md.
 """
 
 from .camera import Camera

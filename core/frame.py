@@ -103,7 +103,7 @@ class MaterialSpec:
     weight : float
         Subsurface Weight w in [0, 1] of the Principled BSDF: Cycles mixes
         ``(1 − w)·diffuse + w·subsurface``, and so does the composite
-        (SPEC §11). A linked (textured) weight travels per pixel instead
+        (docs/explanation/design.md §2.3). A linked (textured) weight travels per pixel instead
         (:attr:`Frame.sss_weight`).
     """
 

@@ -11,7 +11,7 @@ Surface distances
 With ``SSSParams.distance = "surface"`` the Monte Carlo estimator weighs each
 sample by the profile at the true distance between the two surface points,
 reconstructed from the depth buffer and the camera, times the area Jacobian
-of the screen → surface mapping (SPEC §11). :class:`Surface` holds what that
+of the screen → surface mapping (docs/explanation/design.md §5.5). :class:`Surface` holds what that
 needs per frame: the camera's unit footprint and principal point, and the
 surface area each pixel covers, from one-sided differences of the
 reconstructed positions (central where both neighbours continue the surface,

@@ -1,4 +1,4 @@
-"""The post-process split in space: image tiles with a halo, bit for bit (SPEC §11).
+"""The post-process split in space: image tiles with a halo, bit for bit (docs/explanation/design.md §12).
 
 The post-process is sequential in time (each method carries a per-pixel
 history from frame to frame) but local in space: a pixel's result at frame k

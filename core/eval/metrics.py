@@ -6,7 +6,7 @@ Two quality figures, always reported side by side and labelled:
   our own 1024-spp ``reference`` on the same passes. It isolates the
   estimator's Monte Carlo noise.
 - *against ground truth* (:func:`psnr_gt`): RGB PSNR against the same frame
-  path-traced by Cycles with its own subsurface on (SPEC §11). It is what a
+  path-traced by Cycles with its own subsurface on (docs/explanation/accuracy.md §1). It is what a
   Blender user sees, model error included.
 
 The ground-truth display rule: per frame, exposure ``k = 1/p99(max_c GT)``
@@ -132,7 +132,7 @@ def silhouette(mask: np.ndarray, material: np.ndarray, depth: np.ndarray) -> np.
 
     An SSS pixel whose 8-neighbourhood holds a pixel of another material, the
     background, or a depth more than 10 % away (an occlusion edge) — where
-    screen-space scattering runs out of surface (the rims of SPEC §11).
+    screen-space scattering runs out of surface (the rims of docs/explanation/accuracy.md §2).
     The image border does not count as an edge.
     """
     farther, nearer, other = _neighbour_edges(material, depth)

@@ -127,7 +127,7 @@ def cv_coefficient(
     -------
     (P,) float64 α. Where ḡ <= 0 the bound is taken as [0, 1] (α then does
     not matter: Res = f̄). A negative f̄ (the estimator's centre control lets
-    Î dip below 0) narrows D to [0, (f̄ + ḡ)/ḡ] as SPEC §7 states; when
+    Î dip below 0) narrows D to [0, (f̄ + ḡ)/ḡ] as docs/explanation/design.md §8 states; when
     f̄ < −ḡ the bound is empty and α = 0 (Res = f̄).
     """
     s_xy = np.asarray(s_xy, dtype=np.float64)

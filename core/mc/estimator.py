@@ -27,7 +27,7 @@ With a :class:`~cvsss.core.geometry.Surface` in the Geometry (SSSParams
     w_c = γ_c·p̂_c(r)/q(r) · R_c(d)/R_c(r) · J,
 
 with d the distance between the two points on the depth-buffer surface and J
-the area Jacobian of the screen → surface mapping (SPEC §11): the estimator
+the area Jacobian of the screen → surface mapping (docs/explanation/design.md §5.5): the estimator
 is then unbiased for ``B(p) + ∫ R_c(‖x_p − x_q‖)·(B(q) − B(p)) dA_q`` over the
 visible surface beyond r0 — still exact for constant lighting, and equal to
 the planar estimator on a fronto-parallel plane.

@@ -3,7 +3,7 @@
 Every frame's distant estimate Î_t carries the Monte Carlo noise of its own
 samples. Reusing earlier frames' estimates along the motion vectors removes
 much of it, but plain accumulation lags and ghosts exactly when lights flash,
-switch or shadows move. Following SPEC §11, with ``λ = max(λ_min, 1/(n+1))``
+switch or shadows move. Following docs/explanation/design.md §10, with ``λ = max(λ_min, 1/(n+1))``
 (n frames accumulated, reset on disocclusion or a material change) and
 ``Â_{t−1}`` the reprojected accumulation clamped to the current
 neighbourhood (TAA-style variance clipping, in the accumulated domain):

@@ -6,7 +6,7 @@ G); the profile converts to scene units with one factor per slot,
 an artist ``scale`` that makes a measured material's scattering visible in a
 scene not modelled at real size, like Blender's Subsurface Scale).
 
-Multiple scattering (the SPEC §4 dipole)::
+Multiple scattering (the dipole of docs/explanation/design.md §4)::
 
     σt′ = σa + σs′, α′ = σs′/σt′, σtr = sqrt(3σa σt′),
     F_dr = −1.440/η² + 0.710/η + 0.668 + 0.0636η, A = (1 + F_dr)/(1 − F_dr),

@@ -1,4 +1,4 @@
-"""Coefficient study of the control-variate residual (P Fig. 5, SPEC §9).
+"""Coefficient study of the control-variate residual (P Fig. 5; docs/explanation/design.md §8.5).
 
 A 1D integrand with a known-integral control,
 

@@ -1,6 +1,6 @@
 """Ground truth: the same frame path-traced by Cycles with its own subsurface on.
 
-SPEC §11 "Ground truth": each (or every k-th) frame is rendered again by
+The ground truth (docs/explanation/accuracy.md §1): each (or every k-th) frame is rendered again by
 Cycles — also when the passes are rendered with EEVEE — with subsurface on:
 every Principled BSDF of the participating materials (also inside node
 groups) uses ``subsurface_method`` BURLEY (Christensen-Burley, the profile
@@ -35,7 +35,7 @@ from .passes import SceneSetup, read_record, render_to, restore_rna
 #: Cycles subsurface methods the ground truth can use (Blender identifiers).
 METHODS = ("BURLEY", "RANDOM_WALK")
 
-#: Default samples per pixel (SPEC §11: at least 1024).
+#: Default samples per pixel (docs/explanation/accuracy.md: at least 1024).
 DEFAULT_SAMPLES = 1024
 
 #: Cycles' hard limit on samples per pixel.

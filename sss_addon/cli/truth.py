@@ -44,7 +44,7 @@ class TruthPlan:
     Attributes
     ----------
     every : ground truth on every k-th frame (0: none)
-    samples : ground-truth samples per pixel (SPEC §11: >= 1024)
+    samples : ground-truth samples per pixel (docs/explanation/accuracy.md: >= 1024)
     equal_time_frames : frames of the equal-time table (must carry ground truth)
     equal_time_spp : Cycles samples per pixel compared
     """

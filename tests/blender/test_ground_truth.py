@@ -1,4 +1,4 @@
-"""Cycles ground truth (SPEC §11): rendered with subsurface on, measured against, scene restored."""
+"""Cycles ground truth (docs/explanation/accuracy.md §1): rendered with subsurface on, measured against, scene restored."""
 
 import csv
 import math

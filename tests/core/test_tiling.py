@@ -1,4 +1,4 @@
-"""Tiles with a halo reproduce the whole-image post bit for bit (core.tiling, SPEC §11).
+"""Tiles with a halo reproduce the whole-image post bit for bit (core.tiling; docs/explanation/design.md §12).
 
 Every method runs over a short sequence whose content moves across tile
 borders (motion vectors of a few pixels, sub-pixel jitter), once on the whole

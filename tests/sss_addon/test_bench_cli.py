@@ -316,7 +316,7 @@ def test_quick_run_logs_progress_and_the_targets(quick_run):
 
 # -- studies -------------------------------------------------------------------------------
 def test_cv1d_writes_summary_curves_and_figure(tmp_path, capsys):
-    """The coefficient study's files hold what the study is known to give (SPEC §9):
+    """The coefficient study's files hold what the study is known to give (docs/explanation/design.md §8.5):
     the optimal coefficients of f = h/(1+y) against g = h(1−y), y ~ U[0, 1]
     (Cov(f, g)/Var(g) = 12·(2 ln 2 − 1 − (ln 2)/2) = 18 ln 2 − 12 ≈ 0.4767 for the
     sampled control, 2 ln 2 ≈ 1.386 for the known constant G = h/2), the five

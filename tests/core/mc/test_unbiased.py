@@ -1,6 +1,6 @@
 """The distant estimator is unbiased for the integral it defines: checked by quadrature.
 
-On a fronto-parallel single-material plane the estimator (SPEC §5) defines,
+On a fronto-parallel single-material plane the estimator (docs/explanation/design.md §5) defines,
 per SSS pixel p and channel c,
 
     L_c(p) = (1 − γ_c)·B_c(p) + γ_c·∫_{r0}^{r_max} p̂_c(r)·(1/2π)∫ B_c(q(r, θ)) dθ dr,
@@ -94,7 +94,7 @@ def plane(case: str):
 
 
 def burley_model_cdf(d: np.ndarray, truncate: float = 16.0):
-    """The truncated, renormalised Burley CDF per channel, closed form (SPEC §4)."""
+    """The truncated, renormalised Burley CDF per channel, closed form (docs/explanation/design.md §4)."""
 
     def cdf(r):
         r = np.asarray(r, dtype=np.float64)[None, :]
@@ -204,7 +204,7 @@ def test_quadrature_is_converged():
 
 
 def test_burley_closed_form_matches_the_profile():
-    """The quadrature's Burley CDF is the SPEC's, independent of core.profiles.burley."""
+    """The quadrature's Burley CDF is the design's (§4), independent of core.profiles.burley."""
     d = np.array([0.02, 0.008, 0.003])
     cdf, rmax = burley_model_cdf(d)
     r = np.linspace(0, 0.4, 101)
