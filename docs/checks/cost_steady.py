@@ -16,7 +16,8 @@ Run from the repo root:
 
 import argparse
 
-from cvsss.core.bench import BenchConfig, section_cost
+from cvsss.core.bench import BenchConfig
+from cvsss.core.bench.cost import section_cost
 
 
 def main() -> None:

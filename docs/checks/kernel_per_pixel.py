@@ -1,7 +1,7 @@
 """What the compiled kernel costs per pixel and per sample, from a fit over fixed counts.
 
-Times the kernel call alone (``core.mc.estimator_numba.kernel``, inside
-``run_kernel``) on the bench's flash frame (``core.synthetic``, default sample
+Times the kernel call alone (``core.mc.estimator_numba.build_for``, inside
+``core.mc.estimator._distant_sums_compiled``) on the bench's flash frame (``core.synthetic``, default sample
 kernel ``cycles``) with every SSS pixel at N ∈ {1, 2, 4, 8, 16, 32} samples,
 calls interleaved, minimum of ``--calls`` per N, on one thread and on all of
 them, and fits ``time = a·pixels + b·samples``. ``a`` is what a pixel costs
@@ -22,9 +22,10 @@ import numba
 import numpy as np
 from shared import timed_kernel
 
-from cvsss.core.bench import gather_ns_per_sample
+from cvsss.core.backends.numba import sampling as estimator_numba
+from cvsss.core.bench.gather import gather_ns_per_sample
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc import estimator_numba
+from cvsss.core.mc.estimator import _distant_sums_compiled
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import ProfileCache
 from cvsss.core.synthetic import scene_frame
@@ -53,10 +54,12 @@ def main() -> None:
                 for _ in range(a.calls + 1):  # the first round compiles or loads
                     for n in COUNTS:
                         counts = np.full(geom.size, n, np.int64)
-                        estimator_numba.run_kernel(
+                        _distant_sums_compiled(
                             geom, profile, counts, active, frame.lighting, frame.depth,
-                            2, 0, params.depth_slope, False, True, 1.0, params.contact,
-                            distant=np.zeros((geom.size, 3)),
+                            frame=2, seed=0, depth_slope=params.depth_slope, variance=False,
+                            disk=True, hidden_light=1.0, contact=params.contact,
+                            chunk_samples=1 << 16, distant=np.zeros((geom.size, 3)),
+                            start=False, samples=int(counts[active].sum()),
                         )  # fmt: skip
                         best[n] = min(best[n], timed["s"])
                 x = np.array(COUNTS, float) * active.size

@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-SOURCE = Path(__file__).resolve().parents[2] / "core" / "mc" / "estimator_numba.py"
+SOURCE = Path(__file__).resolve().parents[2] / "core" / "backends" / "numba" / "sampling.py"
 #: Stages of pixel_sums, each opened by the first source line that contains its marker
 #: (in this order); a stage runs to the next one's first line.
 MARKERS = (
@@ -82,7 +82,8 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
     import numpy as np
     from shared import steady_geometry
 
-    from cvsss.core.mc import estimator_numba as en
+    from cvsss.core.backends.numba import sampling as en
+    from cvsss.core.mc.estimator import _distant_sums_compiled
     from cvsss.core.params import SSSParams
 
     params = SSSParams(backend="numba")
@@ -90,13 +91,15 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
     if counts is not None:
         n = np.full(geom.size, counts, np.int64)
     active = np.flatnonzero((n > 0) & (geom.gamma_sum > 0))
-    en.kernel = lambda samples, pixels=0: en.pixel_sums_serial
+    en.build_for = lambda samples, pixels=0: en.pixel_sums_serial
 
     def run():
-        en.run_kernel(
-            geom, profile, n, active, frame.lighting, frame.depth, frame.number, params.seed,
-            params.depth_slope, True, True, params.hidden_light, params.contact,
+        _distant_sums_compiled(
+            geom, profile, n, active, frame.lighting, frame.depth, frame=frame.number,
+            seed=params.seed, depth_slope=params.depth_slope, variance=True, disk=True,
+            hidden_light=params.hidden_light, contact=params.contact, chunk_samples=1 << 16,
             distant=np.empty((geom.size, 3)), start=active.size == geom.size,
+            samples=int(n[active].sum()),
         )  # fmt: skip
 
     run()  # compiles

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cvsss.core.backends.numba import sampling as estimator_numba
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc import estimator_numba
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import ProfileCache
@@ -71,7 +71,7 @@ def main() -> None:
     total = int(counts.sum())
     print(f"{w}x{h}: {geom.size} SSS pixels, {total} samples")
     source = Path(estimator_numba.__file__).read_text()
-    original = estimator_numba.kernel
+    original = estimator_numba.build_for
     previous = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         try:
@@ -81,7 +81,7 @@ def main() -> None:
                 spec = importlib.util.spec_from_file_location(path.stem, path)
                 module = importlib.util.module_from_spec(spec)
                 spec.loader.exec_module(module)
-                estimator_numba.kernel = lambda n, p=0, m=module: m.pixel_sums
+                estimator_numba.build_for = lambda n, p=0, m=module: m.pixel_sums
 
                 def run():
                     estimate_distant(
@@ -107,7 +107,7 @@ def main() -> None:
                 print(f"{name:>12}: {ns:6.2f} ns/sample  (+{ns - previous:5.2f})")
                 previous = ns
         finally:
-            estimator_numba.kernel = original
+            estimator_numba.build_for = original
 
 
 if __name__ == "__main__":

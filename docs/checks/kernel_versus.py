@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from shared import steady_geometry
 
-from cvsss.core.mc import estimator_numba
+from cvsss.core.backends.numba import sampling as estimator_numba
 from cvsss.core.params import SSSParams
 
 

@@ -21,7 +21,7 @@ import time
 import numpy as np
 from shared import steady
 
-from cvsss.core.bench import gather_ns_per_sample
+from cvsss.core.bench.gather import gather_ns_per_sample
 from cvsss.core.geometry import geometry_of
 from cvsss.core.mc import estimator
 from cvsss.core.params import SSSParams

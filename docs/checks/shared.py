@@ -12,9 +12,9 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from cvsss.core.backends.numba import sampling as estimator_numba
 from cvsss.core.frame import Frame
 from cvsss.core.geometry import Geometry, GeometryCache
-from cvsss.core.mc import estimator_numba
 from cvsss.core.method import MethodOptions
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
@@ -68,11 +68,11 @@ def steady_geometry(
 
 @contextlib.contextmanager
 def timed_kernel(build=None) -> Iterator[dict]:
-    """``estimator_numba.kernel`` wrapped for the ``with`` block: each call of the kernel
+    """``estimator_numba.build_for`` wrapped for the ``with`` block: each call of the kernel
     it returns puts its seconds in the yielded dict (``"s"``). ``build``: that build
     at every count (e.g. ``pixel_sums``, the parallel one); None: the one it picks."""
     timed: dict = {}
-    original = estimator_numba.kernel
+    original = estimator_numba.build_for
 
     def kernel(samples, pixels=0):
         fn = build or original(samples, pixels)
@@ -85,8 +85,8 @@ def timed_kernel(build=None) -> Iterator[dict]:
 
         return run
 
-    estimator_numba.kernel = kernel
+    estimator_numba.build_for = kernel
     try:
         yield timed
     finally:
-        estimator_numba.kernel = original
+        estimator_numba.build_for = original

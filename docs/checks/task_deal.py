@@ -24,8 +24,8 @@ import numba
 import numpy as np
 from shared import steady
 
+from cvsss.core.backends.numba import sampling as estimator_numba
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc import estimator_numba
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SSSParams
@@ -49,7 +49,7 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=15)
     a = ap.parse_args()
     params = SSSParams()
-    original = estimator_numba.kernel
+    original = estimator_numba.build_for
     ways = {
         "dealt": lambda *args: estimator_numba.pixel_sums(*args),
         "in order": lambda *args: estimator_numba.pixel_sums(*args[:-1], 1),
@@ -64,7 +64,7 @@ def main() -> None:
             for call in range(a.calls):
                 order = list(ways) if call % 2 else list(ways)[::-1]
                 for way in order:
-                    estimator_numba.kernel = lambda n, p=0, fn=ways[way]: fn
+                    estimator_numba.build_for = lambda n, p=0, fn=ways[way]: fn
                     t0 = time.perf_counter()
                     est = estimate_distant(
                         geom, frame.lighting, frame.depth, profile, counts,
@@ -74,7 +74,7 @@ def main() -> None:
                     best[way] = min(best[way], time.perf_counter() - t0)
                     out[way] = (est.distant, est.fallback)
         finally:
-            estimator_numba.kernel = original
+            estimator_numba.build_for = original
         same = np.array_equal(out["dealt"][0], out["in order"][0])
         same = same and out["dealt"][1] == out["in order"][1]
         n = int(counts.sum())
