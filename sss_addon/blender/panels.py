@@ -8,7 +8,7 @@ from ...core.backends import select as mc_backend
 from ...core.methods import METHODS
 from . import autoexec
 from . import materials as sss_materials
-from .apply_on_render.scenes import scene_notes
+from .apply_on_render.notes import scene_notes
 from .properties import QUALITY_METHODS, param_properties
 
 
