@@ -287,8 +287,9 @@ class SSSSettings(PropertyGroup):
         name="Denoise Passes",
         description=(
             "Denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided by "
-            "Cycles' Denoising Albedo and Normal) before the post-process reads them. Cycles "
-            "passes only; pass files made with the other setting are rendered again"
+            "Cycles' Denoising Albedo and Normal) before the post-process reads them, instead "
+            "of denoising the finished frame as the scene's denoiser asks. Cycles passes "
+            "only; pass files made with the other setting are rendered again"
         ),
         default=False,
     )

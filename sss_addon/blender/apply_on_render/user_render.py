@@ -1,11 +1,11 @@
 """What the user's render would have made, read before the scene switches to passes.
 
 A render with Apply on Render must give the frame the user had: the passes
-the view layer writes (for the compositor and a multilayer EXR), the
-compositor, the denoiser. :func:`user_render` reads them while the scene
-still holds the user's settings; :class:`KeepingPassSetup` is the pass
-configuration that leaves the user's passes on (and Cycles' denoising
-guides stored) beside the add-on's, so that one pass render serves both.
+the view layer writes (for the compositor and a multilayer EXR) and the
+compositor (the denoiser: :func:`..render.job_from_scene`). :func:`user_render`
+reads them while the scene still holds the user's settings;
+:class:`KeepingPassSetup` is the pass configuration that leaves the user's
+passes on beside the add-on's, so that one pass render serves both.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..denoise_frame import DenoiseSettings, scene_denoise
 from ..passes import PassSetup
 
 #: The Render Layers node's socket of the Combined pass, and the one made of its alpha.
@@ -60,8 +59,6 @@ class UserRender:
     ----------
     passes : list of str
         The view layer's passes (:func:`user_passes`), Combined first.
-    denoise : DenoiseSettings or None
-        Cycles' denoiser settings when the render denoises.
     compositor : bool
         The scene's compositor runs on the render (:func:`compositing`).
     multilayer : bool
@@ -72,7 +69,6 @@ class UserRender:
     """
 
     passes: list[str] = field(default_factory=lambda: ["Combined"])
-    denoise: DenoiseSettings | None = None
     compositor: bool = False
     multilayer: bool = False
     pass_flags: frozenset[str] = frozenset()
@@ -102,7 +98,6 @@ def user_render(scene, view_layer) -> UserRender:
     """:class:`UserRender` of ``view_layer`` as the scene is set now (before the switch)."""
     return UserRender(
         passes=user_passes(scene, view_layer),
-        denoise=scene_denoise(scene, view_layer),
         compositor=compositing(scene),
         multilayer=multilayer(scene),
         pass_flags=_flags_on(view_layer, ("use_pass_",)),
@@ -113,20 +108,17 @@ def user_render(scene, view_layer) -> UserRender:
 
 
 class KeepingPassSetup(PassSetup):
-    """:class:`.passes.PassSetup` that also keeps the user's passes and the denoiser's guides.
+    """:class:`.passes.PassSetup` that also keeps the user's passes.
 
     The add-on's own channels are the same as without (the passes are
     independent outputs of the same samples); only the extra passes cost.
 
     Parameters
     ----------
-    scene, materials, view_layer, engine, normal, denoise
+    scene, materials, view_layer, engine, normal, denoise, guides
         As :class:`.passes.PassSetup`.
     user : UserRender or None
         Its pass switches stay on (None: only the add-on's passes).
-    guides : bool
-        Store Cycles' Denoising Albedo and Normal (``denoising_store_passes``),
-        the guides of the finished frame's denoise.
     """
 
     def __init__(
@@ -140,21 +132,16 @@ class KeepingPassSetup(PassSetup):
         user: UserRender | None = None,
         guides: bool = False,
     ) -> None:
-        super().__init__(scene, materials, view_layer, engine, normal, denoise)
+        super().__init__(scene, materials, view_layer, engine, normal, denoise, guides)
         self.user = user
-        self.guides = guides
 
     def _only_layer(self, wanted) -> None:
         kept = self.user.pass_flags if self.user is not None else frozenset()
         super()._only_layer(lambda ident: wanted(ident) or ident in kept)
         layer = getattr(self.view_layer, "cycles", None)
-        if layer is None:
-            return
-        if self.user is not None:
+        if layer is not None and self.user is not None:
             for ident in self.user.cycles_flags:
                 setattr(layer, ident, True)
-        if self.guides:
-            layer.denoising_store_passes = True
 
     def index_tables(self) -> dict[str, np.ndarray]:
         """Index passes of the user's to renumber: pass name -> (N,) int table from the
