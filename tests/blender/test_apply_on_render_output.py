@@ -71,6 +71,12 @@ def _animation(scene, folder: Path, snapshot=None) -> dict[int, dict[str, np.nda
     }
 
 
+def _manifest(folder: Path, frame: int) -> dict[str, str]:
+    """The Cryptomatte fields of a frame's EXR header (the manifest, hash, name)."""
+    header = OpenEXR.File(str(folder / f"f_{frame:04d}.exr"), header_only=True).parts[0].header
+    return {k: str(v) for k, v in header.items() if k.startswith("cryptomatte/")}
+
+
 def _reference(scene, out: Path) -> dict[int, np.ndarray]:
     """Composite of ``cvsss render`` per frame (linear RGB, top row first)."""
     method = scene.sss_settings.method
@@ -98,6 +104,7 @@ def test_denoiser_and_multilayer_passes_as_the_scene_asks(scene, tmp_path, snaps
     layer = scene.view_layers[0]
     name = layer.name + "."
     layer.use_pass_mist = layer.use_pass_normal = layer.use_pass_object_index = True
+    layer.use_pass_cryptomatte_object = True
     layer.cycles.denoising_store_passes = True
     for index, obj in enumerate(scene.objects):
         obj.pass_index = 40 + 3 * index  # the user's numbers, not the pass render's
@@ -136,8 +143,11 @@ def test_denoiser_and_multilayer_passes_as_the_scene_asks(scene, tmp_path, snaps
         # The channels of Blender's own render, with the values of the passes the
         # subsurface leaves alone (Object Index back in the user's numbering).
         assert sorted(on[frame]) == sorted(plain[frame])
-        for channel in ("Mist.Z", "Object Index.X"):
+        crypto = [k for k in plain[frame] if ".CryptoObject" in k]
+        assert crypto
+        for channel in ("Mist.Z", "Object Index.X", *(k.removeprefix(name) for k in crypto)):
             np.testing.assert_array_equal(on[frame][name + channel], plain[frame][name + channel])
+        assert _manifest(tmp_path / "on", frame) == _manifest(tmp_path / "plain", frame) != {}
         assert set(np.unique(on[frame][name + "Object Index.X"])) <= {
             0.0,
             *(float(o.pass_index) for o in scene.objects),

@@ -18,6 +18,10 @@ steps; the rest is Blender's pass render). From the repository root::
 
     python tools/measure/apply_on_render_cost.py --size 128x72 --spp 16 --frames 8 --rounds 3
     python tools/measure/apply_on_render_cost.py --size 128x72 --spp 64 --method as_ccv_t
+    python tools/measure/apply_on_render_cost.py --compositor --multilayer
+
+(``--compositor``: a compositor of a few nodes reading a pass; ``--multilayer``: a
+multilayer EXR of a few passes, Cryptomatte among them, instead of PNG.)
 
 (``python`` with ``bpy`` 5.0 and the ``cvsss`` package importable.)
 """
@@ -108,6 +112,17 @@ def main() -> None:
     parser.add_argument(
         "--warmup", type=int, default=None, help="Warm-up Frames (default: the setting's default)"
     )
+    parser.add_argument(
+        "--compositor",
+        action="store_true",
+        help="a compositor on the render (Color Balance, Glare, the Mist pass mixed in)",
+    )
+    parser.add_argument(
+        "--multilayer",
+        action="store_true",
+        help="32-bit multilayer EXR output with Normal, Mist, Object Index and Cryptomatte "
+        "passes (instead of PNG)",
+    )
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     scene = build_scene(width, height, args.spp, args.frames)
@@ -117,6 +132,10 @@ def main() -> None:
     if args.warmup is not None:
         settings.warmup_frames = args.warmup
     scene.render.image_settings.file_format = "PNG"
+    if args.multilayer:
+        multilayer(scene)
+    if args.compositor:
+        compositor(scene)
     instrument()
     folder = Path(tempfile.mkdtemp(prefix="cvsss-cost-"))
     times: dict[str, list[float]] = collections.defaultdict(list)
@@ -133,10 +152,11 @@ def main() -> None:
                     if apply:
                         spent[name].append(SPENT.copy())
     frames = args.frames
+    extras = [name for name in ("compositor", "multilayer") if getattr(args, name)]
     print(
         f"{width}x{height}, {args.spp} spp, {args.method}, Warm-up Frames "
-        f"{settings.warmup_frames}; medians of {args.rounds} interleaved rounds "
-        f"(load average at the end {_load()}):"
+        f"{settings.warmup_frames}{''.join(', ' + e for e in extras)}; medians of "
+        f"{args.rounds} interleaved rounds (load average at the end {_load()}):"
     )
     for name, per in (("animation", frames), ("still", 1)):
         plain = statistics.median(times[f"{name} plain"])
@@ -152,6 +172,41 @@ def main() -> None:
         )
         print(f"    Apply on Render's steps (s per frame): {parts}")
     print("  runs (s):", {k: [round(t, 2) for t in v] for k, v in times.items()})
+
+
+def multilayer(scene) -> None:
+    """32-bit multilayer EXR output of the view layer's passes, a few of them on."""
+    layer = scene.view_layers[0]
+    layer.use_pass_normal = layer.use_pass_mist = layer.use_pass_object_index = True
+    layer.use_pass_cryptomatte_object = True
+    settings = scene.render.image_settings
+    settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+
+
+def compositor(scene) -> None:
+    """A compositor of the kind a user has: Color Balance and Glare on the image, the Mist
+    pass added."""
+    layer = scene.view_layers[0]
+    layer.use_pass_mist = True
+    group = bpy.data.node_groups.new("compositor", "CompositorNodeTree")
+    group.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    layers = group.nodes.new("CompositorNodeRLayers")
+    layers.scene, layers.layer = scene, layer.name
+    balance = group.nodes.new("CompositorNodeColorBalance")
+    glare = group.nodes.new("CompositorNodeGlare")
+    mix = group.nodes.new("ShaderNodeMix")
+    mix.data_type, mix.blend_type = "RGBA", "ADD"
+    mix.inputs["Factor"].default_value = 0.1
+    out = group.nodes.new("NodeGroupOutput")
+    group.links.new(layers.outputs["Image"], balance.inputs["Image"])
+    group.links.new(balance.outputs[0], glare.inputs["Image"])
+    group.links.new(glare.outputs[0], mix.inputs[6])
+    group.links.new(layers.outputs["Mist"], mix.inputs[7])
+    group.links.new(mix.outputs[2], out.inputs[0])
+    scene.compositing_node_group = group
+    scene.render.use_compositing = True
 
 
 def _load() -> str:

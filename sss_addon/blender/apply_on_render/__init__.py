@@ -6,7 +6,8 @@ post-processes every frame Blender writes. Handlers (all ``@persistent``):
 
 ``render_init``
     What the user's render would make is read first (:mod:`.user_render`: the
-    view layer's passes, the compositor, Cycles' denoiser settings). The
+    view layer's passes, the compositor; :func:`..render.job_from_scene`:
+    Cycles' denoiser settings). The
     scene then switches to the pass configuration for the duration of the
     render (:class:`.user_render.KeepingPassSetup`: Subsurface Weight 0, pass
     indices and flags, compositor and sequencer off, 32-bit multilayer EXR
@@ -15,19 +16,23 @@ post-processes every frame Blender writes. Handlers (all ``@persistent``):
     denoises). Blender copies the render settings right after this handler,
     so its own render now renders passes. Before the switch a linked copy of
     the scene, emptied of everything but the camera, keeps the user's output
-    settings and runs a copy of the user's compositor: the *output scene*. A problem the user can fix
-    (another engine than Cycles or EEVEE, no camera, no subsurface material,
-    multi-view) stops the render with a message: the render engine becomes
-    :class:`.engine.ResultEngine`, which reports the error, so Blender cancels before
-    writing anything.
+    settings and runs a copy of the user's compositor: the *output scene*. A
+    problem the user can fix (another engine than Cycles or EEVEE, no camera,
+    no subsurface material, multi-view) stops the render with a message: the
+    render engine becomes :class:`.engine.ResultEngine`, which reports the
+    error, so Blender cancels before writing anything.
 ``render_pre``
-    The frame's sidecar (camera, materials) is taken. On the first frame of
-    a fresh history ``warmup_frames`` frames before it are rendered (nested
-    renders of a linked copy of the scene, which has its own Render) and
-    processed, their output dropped. Output placeholders and *Overwrite* off
-    are honoured here, as Blender does before it renders a frame.
+    The frame's sidecar (camera, materials) is taken. Output placeholders and
+    *Overwrite* off are honoured here, as Blender does before it renders a
+    frame.
 ``render_write``
-    Blender has written the frame's pass EXR. The worker reads it, runs the
+    Blender has written the frame's pass EXR. On the first frame of a fresh
+    history of an animation, with a method that reuses its history's
+    estimates (:func:`.session.warm_up_pays`), ``warmup_frames`` frames
+    before it are rendered (nested renders of a linked copy of the scene,
+    which has its own Render) and processed, their output dropped: only here
+    is it known whether the render is a still, which needs none. The worker
+    reads the pass EXR, runs the
     method (:class:`core.run.FrameStream` owns the history; frames go in
     order, and consecutive renders such as ``-f 1..3`` continue it in
     background mode), denoises the finished frame as the scene's Cycles

@@ -67,9 +67,10 @@ def warm_up_pays(method: str) -> bool:
     (a temporal method), so a cold history makes the first frames noisier.
 
     The other methods' history only steers the sample counts: 8 warm-up frames
-    changed their first frame by at most 0.07 dB against Cycles' ground truth
-    (``tools/measure/apply_on_render_quality.py``), for one pass render each.
-    A still (F12, ``-f``) renders none either way.
+    changed a still's frame by at most 0.06 dB against Cycles' ground truth
+    (``tools/measure/apply_on_render_quality.py``: as_ccv and as_ocv, and the
+    temporal ones too, whose reuse has nothing to gain on a still), for one
+    pass render each. A still (F12, ``-f``) renders none either way.
     """
     return bool(METHODS[method].temporal)
 
