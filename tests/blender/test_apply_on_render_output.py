@@ -17,6 +17,7 @@ bpy = pytest.importorskip("bpy")
 
 from cvsss.core.io.exr import read_result  # noqa: E402
 from cvsss.sss_addon.blender import standalone  # noqa: E402
+from cvsss.sss_addon.blender.apply_on_render import handlers  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.notes import scene_notes  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.session import active_session  # noqa: E402
 
@@ -271,3 +272,22 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     assert "The Diffuse passes hold no subsurface light (only Combined does)" not in (
         scene_notes(scene)
     )
+
+
+def test_ui_finishes_through_the_users_compositor(scene, tmp_path, snapshot, monkeypatch):
+    """With the UI (the handlers on Blender's render thread, the frames finished after the
+    render job) the compositor runs on the finished frames as in background mode."""
+    monkeypatch.setattr(handlers, "_on_render_thread", lambda: True)
+    expected = _reference(scene, tmp_path / "ref")
+    _user_compositor(scene, tmp_path / "side")
+    scene.render.filepath = str(tmp_path / "apply" / "f_")
+    before = snapshot[0](scene)
+    assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    assert not (tmp_path / "apply").exists()  # nothing delivered yet: the job just ended
+    handlers._poll()  # the UI's timer: finishes (no window here)
+    assert snapshot[1](before, snapshot[0](scene)) == [] and active_session() is None
+    for frame in FRAMES:
+        got = _read(Path(scene.render.frame_path(frame=frame)))
+        np.testing.assert_allclose(
+            _stack(got, "", "RGB"), expected[frame] * GAIN, rtol=1e-6, atol=1e-7
+        )
