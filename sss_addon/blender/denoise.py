@@ -92,7 +92,7 @@ def _loaded(path: Path):
         bpy.data.images.remove(image)
 
 
-def _copy(tree, socket):
+def tree_copy(tree, socket):
     """``socket + 0``: the same pixels as a result of the tree rather than of the image.
 
     Blender 5.0.1 keeps the prefiltered ("Accurate") guides on the result
@@ -125,7 +125,7 @@ def _build_tree(tree, image, layer: str, passes: list[str], folder: Path) -> Non
     fmt.color_depth = "32"
     fmt.exr_codec = "ZIP"
     outputs = source.outputs
-    guides = {name: _copy(tree, outputs[f"Denoising {name}"]) for name in ("Albedo", "Normal")}
+    guides = {name: tree_copy(tree, outputs[f"Denoising {name}"]) for name in ("Albedo", "Normal")}
     for name in passes:
         node = tree.nodes.new("CompositorNodeDenoise")
         tree.links.new(outputs[name], node.inputs["Image"])

@@ -8,7 +8,8 @@ from ...core.backends import select as mc_backend
 from ...core.methods import METHODS
 from . import autoexec
 from . import materials as sss_materials
-from .apply_on_render.scenes import scene_notes
+from .apply_on_render.notes import scene_notes
+from .apply_on_render.session import warm_up_pays
 from .properties import QUALITY_METHODS, param_properties
 
 
@@ -40,7 +41,9 @@ class SSS_PT_render(_RenderPanel, Panel):
         col.prop(s, "apply_on_render")
         sub = col.column()
         sub.active = s.apply_on_render
-        sub.prop(s, "warmup_frames")
+        row = sub.row()
+        row.prop(s, "warmup_frames")
+        row.active = s.apply_on_render and warm_up_pays(s.method)  # temporal methods only
         if s.apply_on_render:
             for text in scene_notes(context.scene):
                 sub.label(text=text, icon="INFO")

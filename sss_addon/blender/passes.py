@@ -325,6 +325,9 @@ class PassSetup(SceneSetup):
     denoise : bool
         Also write Cycles' Denoising Albedo and Normal passes (the guides of
         :func:`.denoise.denoise_pass_file`, which removes them again).
+    guides : bool
+        Also write them, to stay in the file: the guides of the finished
+        frame's denoise (:mod:`.denoise_frame`).
     """
 
     def __init__(
@@ -335,12 +338,14 @@ class PassSetup(SceneSetup):
         engine: str = "CYCLES",
         normal: bool = False,
         denoise: bool = False,
+        guides: bool = False,
     ) -> None:
         super().__init__(scene, view_layer)
         self.materials = list(materials)
         self.engine = engine_identifier(scene, engine)
         self.normal = normal
         self.denoise = denoise
+        self.guides = guides
         self._pass_index: dict[str, int] = {}
         self._object_index: dict[str, int] = {}
         self._sss: sss_materials.SSSDisabled | None = None
@@ -372,7 +377,7 @@ class PassSetup(SceneSetup):
         self._only_layer(
             lambda ident: ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
         )
-        if self.denoise:
+        if (self.denoise or self.guides) and getattr(self.view_layer, "cycles", None) is not None:
             self.view_layer.cycles.denoising_store_passes = True
         for material in bpy.data.materials:
             if material.pass_index != 0 and material.is_editable:
@@ -508,17 +513,21 @@ def read_record(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
-def frame_done(passes_dir: Path, frame: int, denoised: bool = False) -> bool:
-    """The pass EXR and its sidecar of ``frame`` both exist, made with ``denoised`` as asked.
+def frame_done(passes_dir: Path, frame: int, denoised: bool = False, guides: bool = False) -> bool:
+    """The pass EXR and its sidecar of ``frame`` both exist, made with ``denoised`` as asked
+    and, with ``guides``, holding the guides of the finished frame's denoise.
 
-    A sidecar without ``"denoised"`` records undenoised passes; an unreadable
-    sidecar counts as missing (the frame is rendered again).
+    A sidecar without ``"denoised"`` records undenoised passes, one without
+    ``"denoise"`` passes without the guides; an unreadable sidecar counts as
+    missing (the frame is rendered again).
     """
     path = pass_path(passes_dir, frame)
     if not (path.is_file() and path.with_suffix(".json").is_file()):
         return False
     record = read_record(path.with_suffix(".json"))
-    return record is not None and bool(record.get("denoised", False)) == denoised
+    if record is None or bool(record.get("denoised", False)) != denoised:
+        return False
+    return not guides or isinstance(record.get("denoise"), dict)
 
 
 def pass_changes(passes_dir: Path, frame: int, sidecar: dict) -> list[str]:
@@ -527,13 +536,14 @@ def pass_changes(passes_dir: Path, frame: int, sidecar: dict) -> list[str]:
     ``sidecar`` is what a render of the frame would write now
     (:func:`pass_sidecar`, the scene at the frame): another resolution,
     camera, material, Subsurface Weight, unit scale, view layer or engine
-    makes the existing passes stale. The ``denoised`` flag is
-    :func:`frame_done`'s. Empty when they agree (or nothing exists).
+    makes the existing passes stale. The ``denoised`` flag and the
+    ``denoise`` record are :func:`frame_done`'s. Empty when they agree (or
+    nothing exists).
     """
     have = read_record(pass_path(passes_dir, frame).with_suffix(".json"))
     if have is None:
         return []
-    have = {k: v for k, v in have.items() if k != "denoised"}
+    have = {k: v for k, v in have.items() if k not in ("denoised", "denoise")}
     want = json.loads(json.dumps(sidecar))  # tuples as lists, as read back
     return sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
 
@@ -591,6 +601,7 @@ def render_frame(
     specs: list[MaterialSpec],
     view_layer,
     denoise: bool = False,
+    finished_denoise: dict | None = None,
 ) -> Path:
     """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
 
@@ -600,7 +611,10 @@ def render_frame(
     failed render never leaves a file the new sidecar does not describe.
     With ``denoise`` the passes the post reads are denoised
     (:func:`.denoise.denoise_pass_file`) before the rename, and the sidecar
-    records ``"denoised": true``.
+    records ``"denoised": true``. ``finished_denoise`` (the scene's denoiser
+    settings, :meth:`.denoise_frame.DenoiseSettings.to_dict`; the scene set up
+    with ``guides``) is recorded as ``"denoise"``: the file keeps the guides,
+    and the finished frames made of it are to be denoised so.
 
     Returns
     -------
@@ -611,6 +625,8 @@ def render_frame(
     sidecar = pass_sidecar(scene, frame, specs, view_layer)
     if denoise:
         sidecar["denoised"] = True
+    if finished_denoise is not None:
+        sidecar["denoise"] = dict(finished_denoise)
     try:
         path.unlink()
     except FileNotFoundError:

@@ -261,9 +261,11 @@ class SSSSettings(PropertyGroup):
     warmup_frames: IntProperty(
         name="Warm-up Frames",
         description=(
-            "Apply on Render: render and process this many frames before the first one, "
-            "without writing them, so the first delivered frame has a history and is as steady "
-            "as the rest (each costs a pass render plus its post-process)"
+            "Apply on Render: render and process this many frames before the first frame of "
+            "an animation, without writing them, so the first delivered frame has a history "
+            "and is as steady as the rest (each costs a pass render plus its post-process). "
+            "Only for the temporal methods, which reuse their history's estimates; a still "
+            "renders none"
         ),
         default=8,
         min=0,
@@ -287,8 +289,9 @@ class SSSSettings(PropertyGroup):
         name="Denoise Passes",
         description=(
             "Denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided by "
-            "Cycles' Denoising Albedo and Normal) before the post-process reads them. Cycles "
-            "passes only; pass files made with the other setting are rendered again"
+            "Cycles' Denoising Albedo and Normal) before the post-process reads them, instead "
+            "of denoising the finished frame as the scene's denoiser asks. Cycles passes "
+            "only; pass files made with the other setting are rendered again"
         ),
         default=False,
     )

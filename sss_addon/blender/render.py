@@ -23,13 +23,17 @@ The reference (1024 spp) costs as much as all other methods together: with
 (the first, the (k+1)-th, …; it keeps no history, so any subset is exact)
 and PSNR is reported on those frames.
 
-Two options change what the post reads. ``denoise_passes`` denoises the
-passes with Blender's OIDN (denoise.py); pass frames made with the other
-setting are rendered again, never reused. ``ground_truth`` renders the same
-frames with Cycles' own subsurface (every ``ground_truth_every``-th frame,
-the first included) and hands them to the post, which fills the
-ground-truth columns of metrics.csv. Both are part of the run's identity,
-so switching either starts the post-process over (the passes are kept).
+Three options change what the post reads or gives. ``denoise`` denoises
+each method's finished frame as the scene's Cycles denoiser would
+(denoise_frame.py; the pass files keep the denoiser's guides and their
+sidecars record the settings as ``"denoise"``); ``denoise_passes`` denoises
+the passes with Blender's OIDN (denoise.py) instead; pass frames made with
+the other setting are rendered again, never reused. ``ground_truth``
+renders the same frames with Cycles' own subsurface (every
+``ground_truth_every``-th frame, the first included) and hands them to the
+post, which fills the ground-truth columns of metrics.csv. All are part of
+the run's identity, so switching one starts the post-process over (the
+passes are kept).
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ import bpy
 
 from ...core.io.exr import read_combined, read_frame
 from ...core.method import MethodOptions
-from ...core.methods import METHODS
+from ...core.methods import METHODS, make_processor
 from ...core.params import SSSParams
 from ...core.result import FrameResult
 from ...core.run import RunSpec, SequenceRun
@@ -55,6 +59,7 @@ from .. import precompile
 from ..progress import format_clock, printer
 from . import ground_truth as gt
 from . import materials as sss_materials
+from .denoise_frame import DenoiseSettings, cycles_denoise, denoising, read_guides, scene_denoise
 from .errors import RenderError
 from .images import show_result
 from .passes import (
@@ -107,6 +112,9 @@ class Job:
     log: Log = None
     reference_every: int = 1
     denoise_passes: bool = False
+    #: The scene's denoiser settings when the finished frames are denoised (the pass
+    #: files keep the guides; :mod:`.denoise_frame`), else None.
+    denoise: DenoiseSettings | None = None
     ground_truth: bool = False
     ground_truth_samples: int = gt.DEFAULT_SAMPLES
     ground_truth_every: int = 1
@@ -267,13 +275,15 @@ def make_job(
     ground_truth_every: int = 1,
     ground_truth_method: str = "BURLEY",
     warmup_frames: int = 0,
+    denoise: DenoiseSettings | None = None,
 ) -> Job:
     """Check everything a run needs before the scene is touched.
 
     ``reference_every = k`` computes the reference on every k-th frame only.
     ``warmup_frames`` frames before the first are rendered and processed
     first, without results, so the first result has a history.
-    ``denoise_passes`` denoises the passes (Cycles only). ``ground_truth``
+    ``denoise_passes`` denoises the passes, ``denoise`` the finished frames as
+    these settings say (Cycles only; not both). ``ground_truth``
     renders every ``ground_truth_every``-th frame with Cycles' own subsurface
     (``ground_truth_method`` BURLEY or RANDOM_WALK) at ``ground_truth_samples``
     samples per pixel.
@@ -298,11 +308,17 @@ def make_job(
             f"ground_truth_method must be one of {', '.join(gt.METHODS)}, "
             f"got {ground_truth_method!r}"
         )
-    if denoise_passes and engine != "CYCLES":
+    if (denoise_passes or denoise is not None) and engine != "CYCLES":
+        what = "the passes" if denoise_passes else "the finished frames"
         raise RenderError(
-            f"denoising the passes needs Cycles: {engine} writes no Denoising Albedo and "
+            f"denoising {what} needs Cycles: {engine} writes no Denoising Albedo and "
             "Normal passes to guide the denoiser (render the passes with Cycles, or turn "
             "denoising off)"
+        )
+    if denoise_passes and denoise is not None:
+        raise RenderError(
+            "denoise the finished frames (the scene's denoiser, --denoise) or the passes "
+            "(--denoise-passes), not both"
         )
     display = next((n for n in names if n != "reference"), names[0])
     if reference and "reference" not in names:
@@ -353,6 +369,7 @@ def make_job(
         log=log,
         reference_every=reference_every,
         denoise_passes=bool(denoise_passes),
+        denoise=denoise,
         ground_truth=bool(ground_truth),
         ground_truth_samples=ground_truth_samples,
         ground_truth_every=ground_truth_every,
@@ -409,8 +426,9 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             start = time.perf_counter()
             path = pass_path(job.passes_dir, frame)
             wanted = needed is None or needed(frame)
+            guides = job.denoise is not None
             if not job.render_passes:
-                if wanted and not frame_done(job.passes_dir, frame, job.denoise_passes):
+                if wanted and not frame_done(job.passes_dir, frame, job.denoise_passes, guides):
                     raise RenderError(
                         f"{path}: pass file missing or made with other settings after the "
                         "pass render (render the frame again)"
@@ -418,24 +436,41 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             rendered = (
                 wanted
                 and job.render_passes
-                and (job.overwrite or not frame_done(job.passes_dir, frame, job.denoise_passes))
+                and (
+                    job.overwrite
+                    or not frame_done(job.passes_dir, frame, job.denoise_passes, guides)
+                )
             )
             if wanted and job.render_passes and not rendered:
                 check_passes(job, frame)
             # Made with the other denoise setting: said, never reused silently.
-            redo = (
-                rendered
-                and not job.overwrite
-                and frame_done(job.passes_dir, frame, not job.denoise_passes)
-            )
+            redo = None
+            if rendered and not job.overwrite:
+                if frame_done(job.passes_dir, frame, not job.denoise_passes):
+                    was = "on" if not job.denoise_passes else "off"
+                    redo = f"the existing ones were made with denoising {was}"
+                elif guides and frame_done(job.passes_dir, frame, job.denoise_passes):
+                    redo = "the existing ones lack the denoiser's guides"
             if rendered:
                 scene.frame_set(frame)
                 specs = sss_materials.material_specs(job.materials, scene)
                 with PassSetup(
-                    scene, job.materials, job.view_layer, job.engine, job.normal, job.denoise_passes
+                    scene,
+                    job.materials,
+                    job.view_layer,
+                    job.engine,
+                    job.normal,
+                    job.denoise_passes,
+                    guides,
                 ):
                     render_frame(
-                        scene, frame, job.passes_dir, specs, job.view_layer, job.denoise_passes
+                        scene,
+                        frame,
+                        job.passes_dir,
+                        specs,
+                        job.view_layer,
+                        job.denoise_passes,
+                        job.denoise.to_dict() if guides else None,
                     )
             step = Step(index, total, frame, path, rendered, 0.0)
             if wanted and job.ground_truth_due(index - 1):
@@ -465,8 +500,7 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             if job.log:
                 what = "rendered" if rendered else "exists, reused"
                 if redo:
-                    was = "on" if not job.denoise_passes else "off"
-                    what = f"rendered again (the existing ones were made with denoising {was})"
+                    what = f"rendered again ({redo})"
                 if step.ground_truth is not None:
                     what += ", ground truth " + (
                         "rendered" if step.ground_truth_rendered else "exists, reused"
@@ -490,6 +524,8 @@ def run_source(job: Job) -> str:
     source = os.fspath(job.passes_dir.resolve())
     if job.denoise_passes:
         source += " (denoised)"
+    if job.denoise is not None:
+        source += f"; finished frames denoised ({job.denoise.describe()})"
     if job.ground_truth:
         source += (
             f"; ground truth {os.fspath(job.ground_truth_dir.resolve())} "
@@ -513,10 +549,26 @@ def run_of(job: Job, write: bool = True, processors=None) -> SequenceRun:
         warmup_frames=job.warmup_frames,
     )
     existing = "overwrite" if job.overwrite else "continue"
+    if job.denoise is not None:
+        processors = denoising(processors or make_processor, job.denoise, job_guides(job))
     extra = {} if processors is None else {"processors": processors}
     return SequenceRun(
         job.out, spec, job.frames, existing=existing, write=write, log=printer(job.log), **extra
     )
+
+
+def job_guides(job: Job) -> Callable[[int], tuple | None]:
+    """Frame number -> the denoiser's guides in its pass file, for the job's frames
+    (warm-up frames are not denoised: nobody sees their results)."""
+    frames = set(job.frames)
+    layer = job.view_layer.name
+
+    def guides(number: int) -> tuple | None:
+        if number not in frames:
+            return None
+        return read_guides(pass_path(job.passes_dir, number), layer)
+
+    return guides
 
 
 def _post_frame(job: Job, run: SequenceRun, step: Step) -> None:
@@ -566,8 +618,10 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
     run = run or run_of(job)
     if job.render_passes and not job.overwrite:
         # Finished frames are not looked at again: their passes are checked on the first.
+        guides = job.denoise is not None
         first = next(
-            (f for f in job.frames if frame_done(job.passes_dir, f, job.denoise_passes)), None
+            (f for f in job.frames if frame_done(job.passes_dir, f, job.denoise_passes, guides)),
+            None,
         )
         if first is not None:
             check_passes(job, first)
@@ -592,7 +646,8 @@ def _renders_first(job: Job, run: SequenceRun) -> bool:
         return False
     if job.warmup_frames and run.fresh:
         return True
-    return job.overwrite or not frame_done(job.passes_dir, first, job.denoise_passes)
+    guides = job.denoise is not None
+    return job.overwrite or not frame_done(job.passes_dir, first, job.denoise_passes, guides)
 
 
 def render_warmup_frames(job: Job, run: SequenceRun) -> None:
@@ -654,6 +709,7 @@ def job_from_scene(
     ground_truth_every: int | None = None,
     ground_truth_method: str | None = None,
     warmup_frames: int = 0,
+    denoise: bool | None = None,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
@@ -661,6 +717,10 @@ def job_from_scene(
     settings' values one by one; ``options`` a mapping with ``"profile"`` (a
     ProfileChoice replacing the scene's) and ``"separable"`` (SeparableParams
     fields overriding the scene's).
+
+    ``denoise`` (None: as the scene's render does, :func:`.denoise_frame.scene_denoise`,
+    unless the passes are denoised instead) denoises the finished frames with the
+    scene's Cycles denoiser settings.
     """
     settings = scene.sss_settings
     names = list(methods) if methods else [settings.method]
@@ -675,6 +735,11 @@ def job_from_scene(
             profile=given.get("profile", base.profile),
             separable=base.separable.replace(**given.get("separable", {})),
         )
+    pass_engine = engine or settings.engine
+    denoise_passes = _given(denoise_passes, settings.use_denoise_passes)
+    finished = None
+    if not (denoise_passes and denoise is None):  # denoised passes instead, as asked
+        finished = _finished_denoise(scene, render_view_layer(scene, context), pass_engine, denoise)
     return make_job(
         scene,
         frames if frames is not None else frame_range(scene),
@@ -682,7 +747,7 @@ def job_from_scene(
         names,
         params,
         options=options,
-        engine=engine or settings.engine,
+        engine=pass_engine,
         overwrite=settings.overwrite if overwrite is None else overwrite,
         reference=settings.use_reference if reference is None else reference,
         normal=settings.use_normal_pass,
@@ -690,13 +755,29 @@ def job_from_scene(
         context=context,
         log=log,
         reference_every=reference_every,
-        denoise_passes=_given(denoise_passes, settings.use_denoise_passes),
+        denoise_passes=denoise_passes,
         ground_truth=_given(ground_truth, settings.use_ground_truth),
         ground_truth_samples=_given(ground_truth_samples, settings.ground_truth_samples),
         ground_truth_every=_given(ground_truth_every, settings.ground_truth_every),
         ground_truth_method=_given(ground_truth_method, settings.ground_truth_method),
         warmup_frames=warmup_frames,
+        denoise=finished,
     )
+
+
+def _finished_denoise(scene, view_layer, engine: str, asked: bool | None):
+    """The denoiser settings of the finished frames: None (not denoised) or the scene's.
+
+    ``asked`` None follows the scene's render (Cycles passes only: EEVEE's have no
+    guides); True takes the scene's Cycles settings even when its render does not
+    denoise.
+    """
+    if asked is False or (asked is None and engine != "CYCLES"):
+        return None
+    settings = scene_denoise(scene, view_layer)
+    if settings is None and asked:
+        settings = cycles_denoise(scene)
+    return settings
 
 
 def _given(value, setting):

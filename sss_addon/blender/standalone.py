@@ -51,6 +51,7 @@ def render_sequence(
     reference_every: int = 1,
     options: MethodOptions | Mapping | None = None,
     denoise_passes: bool | None = None,
+    denoise: bool | None = None,
     ground_truth: bool | None = None,
     ground_truth_samples: int | None = None,
     ground_truth_every: int | None = None,
@@ -94,7 +95,11 @@ def render_sequence(
     options : MethodOptions, or a mapping of overrides (see :func:`job_from_scene`)
     denoise_passes : bool, optional
         Denoise the passes with Blender's OIDN (Cycles passes only); defaults
-        to ``sss_settings.use_denoise_passes``.
+        to ``sss_settings.use_denoise_passes`` when the finished frames are not
+        denoised.
+    denoise : bool, optional
+        Denoise each method's finished frame with the scene's Cycles denoiser
+        settings (:mod:`.denoise_frame`); None: when the scene's render denoises.
     ground_truth : bool, optional
         Also render the frames with Cycles' own subsurface on (always Cycles)
         into ``<out>/ground_truth`` and fill the ground-truth columns;
@@ -177,6 +182,7 @@ def render_sequence(
             reference_every=reference_every,
             options=options,
             denoise_passes=denoise_passes,
+            denoise=denoise,
             ground_truth=ground_truth,
             ground_truth_samples=ground_truth_samples,
             ground_truth_every=ground_truth_every,

@@ -46,7 +46,7 @@ from ...core.eval import quality
 from ...core.io.errors import CheckpointError, OutputError, PassError
 from ...core.io.exr import list_frames
 from ...core.io.sidecar import read_sidecar
-from ...core.methods import METHODS
+from ...core.methods import METHODS, make_processor
 from ...core.params import ParameterError, SSSParams
 from ...core.profiles.factory import check_materials
 from ...core.run import RunSpec, run_folder
@@ -222,6 +222,15 @@ def build_parser() -> argparse.ArgumentParser:
         "`cvsss render --ground-truth` writes them) to measure against; default: "
         "PASSES/../ground_truth when it exists",
     )
+    post.add_argument(
+        "--denoise",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="denoise each method's finished frame as the pass files' sidecars record "
+        '("denoise": the scene\'s Cycles denoiser settings, written by `cvsss render` when '
+        "it denoises; the pass files then hold the denoiser's guides); needs Blender's "
+        "OpenImageDenoise (bpy); default: when the sidecars record it",
+    )
     post.add_argument("--quiet", action="store_true", help="no per-frame progress")
     _farm_arguments(post, "tile")
     post.add_argument(
@@ -331,13 +340,23 @@ def build_parser() -> argparse.ArgumentParser:
         "(default 1: every frame)",
     )
     rnd.add_argument(
+        "--denoise",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="denoise each method's finished frame as the scene's Cycles denoiser would (its "
+        "prefilter, quality and guides; OpenImageDenoise, guided by the pass render's "
+        "Denoising Albedo and Normal, which the pass files keep; their sidecars record the "
+        'settings as "denoise"); default: when the scene\'s render denoises and the '
+        "passes are not denoised (--denoise-passes); Cycles passes only",
+    )
+    rnd.add_argument(
         "--denoise-passes",
         action=argparse.BooleanOptionalAction,
         default=None,
         help="denoise Combined and the Diffuse passes with Blender's OpenImageDenoise (guided "
         "by Cycles' Denoising Albedo and Normal) before the post reads them; Cycles passes "
-        "only; pass files made with the other setting are rendered again "
-        "(default: the scene's cvsss setting)",
+        "only; pass files made with the other setting are rendered again; instead of "
+        "--denoise (default: the scene's cvsss setting)",
     )
     rnd.add_argument(
         "--warmup-frames",
@@ -486,6 +505,7 @@ def _post(args: argparse.Namespace) -> int:
         ground_truth = args.passes.parent / "ground_truth"
     elif ground_truth is not None and not ground_truth.is_dir():
         raise UserError(f"--ground-truth {ground_truth}: no such folder")
+    denoised = _post_denoise(args.passes, args.denoise, args.quiet)
     common = {
         "existing": existing,
         "allow_gaps": args.allow_gaps,
@@ -504,12 +524,15 @@ def _post(args: argparse.Namespace) -> int:
                     workers=args.workers,
                     scheduler=args.scheduler,
                     tile=args.tile,
+                    wrap=denoised,
                     **common,
                 )
             except FarmError as exc:
                 raise UserError(str(exc)) from None
             return 0
         kernels = before_first_frame(spec.params.backend, spec.order, common["log"])
+        if denoised is not None:
+            common["processors"] = denoised(make_processor)
         run_folder(
             args.passes,
             args.out,
@@ -518,6 +541,56 @@ def _post(args: argparse.Namespace) -> int:
             **{**common, "log": printer(common["log"])},
         )
     return 0
+
+
+def _post_denoise(passes: Path, asked: bool | None, quiet: bool):
+    """``processors`` -> the same, their results denoised as the pass files' sidecars
+    record (``"denoise"``); None when the finished frames are not denoised.
+
+    ``asked`` None follows the sidecars; False never denoises; True needs them to
+    record it (only such pass files hold the guides).
+    """
+    if asked is False:
+        return None
+    try:
+        frames = list_frames(passes)
+    except PassError:
+        return None  # the run reports unusable passes itself
+    records = {}
+    for number, path in frames:
+        try:
+            sidecar = read_sidecar(path.with_suffix(".json"), exr_path=path)
+        except PassError:
+            return None
+        records[number] = (sidecar.raw.get("denoise"), sidecar.view_layer or "ViewLayer")
+    recorded = [n for n, (record, _) in records.items() if isinstance(record, dict)]
+    if not recorded and not asked:
+        return None
+    if len(recorded) != len(records):
+        missing = next(n for n in records if n not in recorded)
+        raise UserError(
+            f"--denoise: frame {missing}'s pass file holds no denoiser guides (its sidecar "
+            'records no "denoise"); render the passes with `cvsss render --denoise`, or '
+            "pass --no-denoise"
+        )
+    try:
+        # Imported here: Blender's OpenImageDenoise; every other post runs without bpy.
+        from ..blender.denoise_frame import DenoiseSettings, denoising, read_guides
+    except ImportError:
+        raise UserError(
+            "the pass files' sidecars ask for the finished frames to be denoised (their scene "
+            "denoises), which needs Blender's OpenImageDenoise: install bpy==5.0.1, or pass "
+            "--no-denoise"
+        ) from None
+    paths = dict(frames)
+    settings = DenoiseSettings.from_dict(records[recorded[0]][0])
+    if not quiet:
+        print(f"the finished frames are denoised as the passes' scene asks: {settings.describe()}")
+
+    def guides(number: int):
+        return read_guides(paths[number], records[number][1]) if number in paths else None
+
+    return lambda processors: denoising(processors, settings, guides)
 
 
 def _render(args: argparse.Namespace) -> int:
@@ -537,10 +610,15 @@ def _render(args: argparse.Namespace) -> int:
         _check_at_least_one("--ground-truth-every", args.ground_truth_every)
     if args.ground_truth_spp is not None and not 1 <= args.ground_truth_spp <= 2**24:
         raise UserError(f"--ground-truth-spp must be in [1, {2**24}], got {args.ground_truth_spp}")
-    if args.denoise_passes and args.engine == "EEVEE":
+    for flag, asked in (("--denoise-passes", args.denoise_passes), ("--denoise", args.denoise)):
+        if asked and args.engine == "EEVEE":
+            raise UserError(
+                f"{flag} needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
+                "passes to guide the denoiser"
+            )
+    if args.denoise and args.denoise_passes:
         raise UserError(
-            "--denoise-passes needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
-            "passes to guide the denoiser"
+            "--denoise (the finished frames) and --denoise-passes (the passes): choose one"
         )
     if args.blend is not None and not args.blend.is_file():
         raise UserError(f"{args.blend}: no such .blend file")
@@ -595,6 +673,7 @@ def _sequence_options(args: argparse.Namespace, frames, methods, params, option_
         "reference_every": args.reference_every,
         "options": option_overrides,
         "denoise_passes": args.denoise_passes,
+        "denoise": args.denoise,
         "ground_truth": args.ground_truth,
         "ground_truth_samples": args.ground_truth_spp,
         "ground_truth_every": args.ground_truth_every,

@@ -68,6 +68,7 @@ def chunk_argv(blend: Path, out: Path, first: int, last: int, job, range_start: 
         "--engine",
         job.engine,
         "--denoise-passes" if job.denoise_passes else "--no-denoise-passes",
+        "--denoise" if job.denoise is not None else "--no-denoise",
         "--quiet",
     ]
     if job.ground_truth:

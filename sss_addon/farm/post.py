@@ -50,6 +50,7 @@ def post_distributed(
     scheduler: str | None = None,
     tile: int = DEFAULT_TILE,
     log: Callable[[str], None] | None = None,
+    wrap: Callable | None = None,
     **kwargs,
 ) -> list[dict]:
     """:func:`core.run.run_folder` with every method's frames processed as tiles on Dask.
@@ -61,11 +62,15 @@ def post_distributed(
     scheduler : address of a running Dask scheduler (``tcp://HOST:PORT``)
     tile : tile side in pixels
     log : progress printer
+    wrap : callable processors -> processors, optional (e.g. the finished frames
+        denoised in this process: ``cvsss post --denoise``)
     kwargs : passed to run_folder (existing, allow_gaps, warn, ground_truth, submit)
     """
     warn = kwargs.get("warn")
     with open_cluster(workers, scheduler, log=log) as executor:
         make = tiled_processors(executor, tile, log=warn or log)
+        if wrap is not None:
+            make = wrap(make)
         return run_folder(
             passes, out, spec, log=printer(log), processors=make, lookahead=True, **kwargs
         )

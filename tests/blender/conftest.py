@@ -17,6 +17,7 @@ import tempfile
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 _USER = tempfile.mkdtemp(prefix="cvsss-blender-user-")
@@ -148,8 +149,12 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
         for i, socket in enumerate(node.inputs):
             if hasattr(socket, "default_value"):
                 out[f"{prefix}.{node.name}.in{i}.{socket.name}"] = _plain(socket.default_value)
-        if node.bl_idname == "ShaderNodeGroup":
+        if node.bl_idname in ("ShaderNodeGroup", "CompositorNodeGroup"):
             _tree(node.node_tree, f"{prefix}>{node.name}", out, seen)
+        for attr in ("scene", "layer"):  # what a Render Layers node reads
+            if node.bl_idname == "CompositorNodeRLayers":
+                value = getattr(node, attr)
+                out[f"{prefix}.{node.name}.{attr}"] = getattr(value, "name", value)
         image = getattr(node, "image", None)
         if image is not None:  # the image a texture node shows, and what it is
             out[f"{prefix}.{node.name}.image"] = (
@@ -179,7 +184,8 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
 def scene_state(scene) -> dict:
     """Everything the pass render may touch: materials (every node input, links with
     their mute flag, texture nodes' images, pass index), object pass indices, view layers (pass flags), render/image/Cycles
-    settings, frame."""
+    settings, the compositor's node group (nodes, links, what its Render Layers read),
+    frame."""
     import bpy
 
     out: dict = {}
@@ -195,6 +201,9 @@ def scene_state(scene) -> dict:
     _props(scene.render, "render", out)
     _props(scene.render.image_settings, "render.image_settings", out)
     _props(scene.cycles, "cycles", out)
+    group = getattr(scene, "compositing_node_group", None)
+    out["compositor"] = group.name if group is not None else None
+    _tree(group, "compositor", out, set())
     out["frame_current"] = scene.frame_current
     out["frame_subframe"] = scene.frame_subframe
     out["camera"] = scene.camera.name if scene.camera else None
@@ -214,6 +223,71 @@ def state_diff(before: dict, after: dict) -> list[str]:
 def snapshot():
     """Function scene -> state dict, and the diff of two states."""
     return scene_state, state_diff
+
+
+# -- an independent denoise ------------------------------------------------------------------
+def _image(name: str, rgb: np.ndarray, non_color: bool):
+    import bpy
+
+    height, width = rgb.shape[:2]
+    rgba = np.ones((height, width, 4), np.float32)
+    rgba[..., :3] = rgb
+    image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+    image.colorspace_settings.name = "Non-Color" if non_color else "Linear Rec.709"
+    image.pixels.foreach_set(np.ascontiguousarray(rgba[::-1]).reshape(-1))
+    image.pack()
+    return image
+
+
+def _oidn(noisy, albedo, normal, prefilter: str, quality: str) -> np.ndarray:
+    """Blender's Denoise node on ``noisy`` guided by ``albedo`` and ``normal`` ((H, W, 3)
+    linear, top row first) with the node's ``prefilter`` and ``quality`` items: (H, W, 3)
+    denoised. Built here, apart from the add-on's own code."""
+    import bpy
+    import OpenEXR
+
+    scene = bpy.data.scenes.new("test denoise")
+    tree = bpy.data.node_groups.new("test denoise", "CompositorNodeTree")
+    images = []
+    with tempfile.TemporaryDirectory() as folder:
+        try:
+            scene.render.resolution_x, scene.render.resolution_y = noisy.shape[1], noisy.shape[0]
+            scene.render.resolution_percentage = 100
+            scene.compositing_node_group = tree
+            node = tree.nodes.new("CompositorNodeDenoise")
+            for socket, pixels in (("Image", noisy), ("Albedo", albedo), ("Normal", normal)):
+                images.append(_image(socket, pixels, socket == "Normal"))
+                source = tree.nodes.new("CompositorNodeImage")
+                source.image = images[-1]
+                tree.links.new(source.outputs["Image"], node.inputs[socket])
+            node.inputs["HDR"].default_value = True
+            node.inputs["Prefilter"].default_value = prefilter
+            node.inputs["Quality"].default_value = quality
+            out = tree.nodes.new("CompositorNodeOutputFile")
+            out.directory = folder
+            out.file_name = "dn"
+            out.save_as_render = False
+            out.format.media_type = "MULTI_LAYER_IMAGE"
+            out.format.file_format = "OPEN_EXR_MULTILAYER"
+            out.format.color_depth = "32"
+            out.file_output_items.new("RGBA", "D")
+            tree.links.new(node.outputs["Image"], out.inputs["D"])
+            assert bpy.ops.render.render(scene=scene.name) == {"FINISHED"}
+            (written,) = Path(folder).glob("*.exr")
+            exr = OpenEXR.File(str(written), separate_channels=True)
+            channels = {k: c.pixels for p in exr.parts for k, c in p.channels.items()}
+            return np.stack([channels[f"D.{c}"] for c in "RGB"], -1)
+        finally:
+            bpy.data.scenes.remove(scene)
+            bpy.data.node_groups.remove(tree)
+            for image in images:
+                bpy.data.images.remove(image)
+
+
+@pytest.fixture
+def oidn():
+    """``oidn(noisy, albedo, normal, prefilter, quality)``: the Denoise node's output."""
+    return _oidn
 
 
 # -- the extension as users get it -------------------------------------------------------

@@ -303,3 +303,63 @@ def test_what_was_skipped_fits_one_line():
     )
     assert Skipped([], ["rig.py"]).describe() == "script 'rig.py'"
     assert not Skipped()
+
+
+def _composites(folder: Path, method: str) -> dict[int, np.ndarray]:
+    return {
+        int(p.stem): read_result(p)["Composite"] for p in sorted((folder / method).glob("*.exr"))
+    }
+
+
+def _guides(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import OpenEXR
+
+    exr = OpenEXR.File(str(path), separate_channels=True)
+    channels = {k: c.pixels for p in exr.parts for k, c in p.channels.items()}
+    return tuple(
+        np.stack([channels[f"ViewLayer.Denoising {name}.{c}"] for c in letters], -1)
+        for name, letters in (("Albedo", "RGB"), ("Normal", "XYZ"))
+    )
+
+
+def test_render_and_post_denoise_as_the_scene_asks(demo, tmp_path, capsys, oidn):
+    """``cvsss render`` denoises the finished frames when the scene's render denoises (its
+    prefilter and quality), and records it in the pass sidecars, which ``cvsss post``
+    follows; ``--no-denoise`` keeps them as the post made them."""
+    scene = demo
+    scene.sss_settings.frame_start, scene.sss_settings.frame_end = 1, 2
+    scene.cycles.use_denoising = True
+    scene.cycles.denoising_prefilter, scene.cycles.denoising_quality = "NONE", "FAST"
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
+    method = scene.sss_settings.method
+    on, off = tmp_path / "on", tmp_path / "off"
+    assert cli.main(["render", str(blend), "--out", str(on), "--quiet"]) == 0
+    assert cli.main(["render", str(blend), "--out", str(off), "--no-denoise", "--quiet"]) == 0
+    sidecar = json.loads((on / "passes" / "0001.json").read_text())
+    assert sidecar["denoise"]["prefilter"] == "NONE" and sidecar["denoise"]["quality"] == "FAST"
+    assert "denoise" not in json.loads((off / "passes" / "0001.json").read_text())
+    denoised, plain = _composites(on, method), _composites(off, method)
+    assert sorted(denoised) == sorted(plain) == [1, 2]
+    for frame, composite in denoised.items():
+        want = oidn(plain[frame], *_guides(on / "passes" / f"{frame:04d}.exr"), "None", "Fast")
+        np.testing.assert_allclose(composite, want, rtol=0, atol=1e-6)
+        assert np.abs(composite - plain[frame]).max() > 1e-3
+    # post: the sidecars say to denoise, --no-denoise does not; passes without the
+    # guides cannot be denoised (one line, status 2).
+    params = ["--method", method, "--quiet"]
+    assert cli.main(["post", str(on / "passes"), "--out", str(tmp_path / "p1"), *params]) == 0
+    assert (
+        cli.main(
+            ["post", str(on / "passes"), "--out", str(tmp_path / "p0"), "--no-denoise", *params]
+        )
+        == 0
+    )
+    post_on, post_off = _composites(tmp_path / "p1", method), _composites(tmp_path / "p0", method)
+    for frame, composite in post_on.items():
+        guides = _guides(on / "passes" / f"{frame:04d}.exr")
+        want = oidn(post_off[frame], *guides, "None", "Fast")
+        np.testing.assert_allclose(composite, want, rtol=0, atol=1e-6)
+    capsys.readouterr()
+    assert cli.main(["post", str(off / "passes"), "--out", str(tmp_path / "p2"), "--denoise"]) == 2
+    assert "holds no denoiser guides" in _error_line(capsys)

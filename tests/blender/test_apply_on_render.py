@@ -41,6 +41,13 @@ def scene(demo, tmp_path):
     return demo
 
 
+def _warm_up(scene, frames: int) -> None:
+    """``frames`` warm-up frames before an animation, with a method that uses them (a
+    temporal one: the others' first frame gains too little to pay for the renders)."""
+    scene.sss_settings.method = "as_ocv_t"
+    scene.sss_settings.warmup_frames = frames
+
+
 def _reference(
     scene, out: Path, warmup: int = 0, frames=FRAMES, engine="CYCLES"
 ) -> dict[int, np.ndarray]:
@@ -165,7 +172,7 @@ def test_off_renders_as_without_the_add_on(scene, tmp_path):
 
 
 def test_warm_up_matches_cvsss_render_warm_up(scene, tmp_path, capfd):
-    scene.sss_settings.warmup_frames = 2
+    _warm_up(scene, 2)
     expected = _reference(scene, tmp_path / "ref", warmup=2)
     cold = _reference(scene, tmp_path / "cold")
     assert not np.array_equal(expected[1], cold[1])  # the warm-up changes frame 1
@@ -216,7 +223,7 @@ def _drive_sun(scene, how: str) -> None:
 
 def _apply_on_render(scene, folder: Path) -> dict[int, np.ndarray]:
     """Apply on Render of FRAMES with 2 warm-up frames into 32-bit EXRs: RGB per frame."""
-    scene.sss_settings.warmup_frames = 2
+    _warm_up(scene, 2)
     scene.render.filepath = str(folder / "f_")
     settings = scene.render.image_settings
     settings.file_format, settings.color_depth = "OPEN_EXR", "32"
@@ -251,7 +258,7 @@ def test_python_drivers_follow_blenders_auto_run(scene, tmp_path, capfd):
     does: trusted file (``open_mainfile(use_scripts=True)``, ``blender -y``) or not."""
     _drive_sun(scene, "keys")
     keyed = _apply_on_render(scene, tmp_path / "keys")
-    scene.sss_settings.warmup_frames = 2
+    _warm_up(scene, 2)
     bpy.data.lights["flash Sun"].animation_data_clear()
     bpy.data.lights["flash Sun"].energy = 0.0  # what a skipped driver gives
     dark = _apply_on_render(scene, tmp_path / "dark")
@@ -345,7 +352,7 @@ def ui(monkeypatch):
 
 def test_ui_finishes_after_the_render_job(scene, tmp_path, snapshot, ui):
     scene_state, state_diff = snapshot
-    scene.sss_settings.warmup_frames = 1
+    _warm_up(scene, 1)
     expected = _reference(scene, tmp_path / "ref", warmup=1)
     before = scene_state(scene)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
@@ -423,7 +430,7 @@ def test_ui_save_while_finishing_saves_the_users_scene(scene, tmp_path, snapshot
     user's scene, not the pass configuration or the add-on's temporary scenes, and the
     frames come out as without the saves."""
     scene_state, state_diff = snapshot
-    scene.sss_settings.warmup_frames = 1
+    _warm_up(scene, 1)
     expected = _reference(scene, tmp_path / "ref", warmup=1)
     before = scene_state(scene)
     scenes = sorted(s.name for s in bpy.data.scenes)
@@ -501,7 +508,7 @@ def test_background_error_at_the_last_frame_is_the_last_line(
 
 def test_frame_by_frame_renders_continue_the_history(scene, tmp_path):
     """``blender -b -f 1..3`` renders one frame per call: the history goes on."""
-    scene.sss_settings.warmup_frames = 1
+    _warm_up(scene, 1)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}
     whole = {f: _image_pixels(p) for f, p in _frame_paths(scene).items()}
     scene.render.filepath = str(tmp_path / "single" / "f_")
@@ -554,7 +561,7 @@ def test_blender_b_renders_a_blend_with_apply_on_render(
     scene, tmp_path, extension_zip, check_script
 ):
     """``blender -b scene.blend -a`` with the extension installed from its zip (bpy module)."""
-    scene.sss_settings.warmup_frames = 1
+    _warm_up(scene, 1)
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}  # here, for comparison
     here = _frame_paths(scene)
     scene.render.filepath = str(tmp_path / "farm" / "f_")

@@ -82,10 +82,6 @@ def on_render_pre(scene, *_args) -> None:
         return
     frame = int(scene.frame_current)
     try:
-        if not session.deferred and session.stream is None:
-            if session._open_stream(frame):
-                for _ in session.warm_up_steps(frame):
-                    pass
         session.frame_started(frame)
     except Exception as exc:  # reported, and the render stopped
         session.abort(f"frame {frame}: {type(exc).__name__}: {exc}")
@@ -102,6 +98,10 @@ def on_render_write(scene, *_args) -> None:
     try:
         session.frame_written(frame)
         if not session.deferred and not session.still:
+            # Here, not at render_pre: only now is it known whether this is a still.
+            if session.stream is None and session.open_stream(session.pending[0][0]):
+                for _ in session.warm_up_steps(session.pending[0][0]):
+                    pass
             while session.pending:
                 text = session.process_next()
                 if session.movie:

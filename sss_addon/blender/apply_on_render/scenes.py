@@ -4,9 +4,8 @@ The *output scene* (:func:`output_scene`) keeps the user's output settings
 for :class:`.engine.ResultEngine` to write finished frames with Blender's own
 writer; :class:`DisplaySetup` turns the user's scene itself into one that
 shows a finished frame; :func:`scene_copy` makes the linked copies both the
-output scene and the warm-up renders use. :func:`pass_engine`,
-:func:`bypassed` and :func:`scene_notes` say what Apply on Render will do
-with the user's scene.
+output scene and the warm-up renders use. :func:`pass_engine` says which
+engine renders the passes.
 """
 
 from __future__ import annotations
@@ -16,6 +15,7 @@ from collections.abc import Iterator
 
 from ..errors import RenderError
 from ..passes import SceneSetup
+from .compositor import retarget
 from .engine import ENGINE
 
 #: Engines whose renders Apply on Render turns into pass renders (Blender id -> cvsss name).
@@ -34,34 +34,6 @@ def pass_engine(scene) -> str:
             f"Apply on Render needs Cycles or EEVEE as the render engine, the scene uses {engine}"
         )
     return PASS_ENGINES[engine]
-
-
-def bypassed(scene) -> list[str]:
-    """What of the user's render the finished frames leave out."""
-    notes = []
-    group = getattr(scene, "compositing_node_group", None)
-    if scene.render.use_compositing and group is not None and len(group.nodes):
-        notes.append("the compositor is bypassed (the finished frame is written as rendered)")
-    editor = scene.sequence_editor
-    strips = getattr(editor, "strips_all", None) or getattr(editor, "sequences_all", None)
-    if scene.render.use_sequencer and editor is not None and strips:
-        notes.append("the sequencer's strips are bypassed")
-    used = [layer.name for layer in scene.view_layers if layer.use]
-    if len(used) > 1:
-        notes.append(f"only view layer {used[0]!r} is rendered (of {len(used)})")
-    return notes
-
-
-def scene_notes(scene) -> list[str]:
-    """Short notes for the panel: what Apply on Render will do differently with this scene."""
-    notes = []
-    try:
-        pass_engine(scene)
-    except RenderError:
-        notes.append("Needs Cycles or EEVEE as the render engine")
-    if scene.render.is_movie_format:
-        notes.append("Movie: frames are encoded after the last one")
-    return notes + [note[0].upper() + note[1:] for note in bypassed(scene)]
 
 
 def scene_copy(scene, role: str):
@@ -102,9 +74,14 @@ def frame_of(scene, frame: int) -> Iterator[None]:
         scene.frame_set(before[0], subframe=before[1])
 
 
-def output_scene(scene, layer_name: str):
+def output_scene(scene, layer_name: str, compositor: bool = False, made: list | None = None):
     """A linked copy of ``scene`` with its output settings and only its camera, for
-    :class:`.engine.ResultEngine` to write finished frames with Blender's own writer."""
+    :class:`.engine.ResultEngine` to write finished frames with Blender's own writer.
+
+    With ``compositor`` it runs a copy of the scene's compositor whose Render
+    Layers nodes read it (:func:`.compositor.retarget`; the copies are appended
+    to ``made``); otherwise none.
+    """
     out = scene_copy(scene, "output")
     for child in list(out.collection.children):
         out.collection.children.unlink(child)
@@ -115,7 +92,11 @@ def output_scene(scene, layer_name: str):
         out.camera = scene.camera
     r = out.render
     r.engine = ENGINE
-    r.use_compositing = False
+    r.use_compositing = bool(compositor)
+    if compositor:
+        out.compositing_node_group = retarget(
+            scene.compositing_node_group, scene, out, made if made is not None else []
+        )
     r.use_sequencer = False
     r.use_border = False
     r.use_multiview = False
@@ -132,12 +113,15 @@ def output_scene(scene, layer_name: str):
 
 class DisplaySetup(SceneSetup):
     """The user's scene rendering with :class:`.engine.ResultEngine` (the Render Result, a
-    still's file), only the processed view layer, whole frame; restored on exit."""
+    still's file), only the processed view layer, whole frame, its compositor as the
+    user has it (its Render Layers nodes read this render), the sequencer bypassed;
+    restored on exit."""
 
     def _apply(self) -> None:
         r = self.scene.render
         r.engine = ENGINE
         r.use_border = False
+        r.use_sequencer = False
         for layer in self.scene.view_layers:
             layer.use = layer == self.view_layer
 

@@ -28,32 +28,51 @@ import OpenEXR
 
 from ....core.io.exr import quiet_native_stderr, read_frame, use_threads
 from ....core.io.sidecar import write_sidecar
+from ....core.methods import METHODS
 from ....core.run import FrameStream, RunSpec
 from ... import precompile
 from .. import materials as sss_materials
 from ..autoexec import warning as skipped_python
 from ..console import StdoutFilter
+from ..denoise_frame import denoise_frame, read_guides
 from ..errors import RenderError
 from ..images import show_result
 from ..passes import (
-    PassSetup,
+    NEEDED_PASSES,
     finish_pass_file,
     output_size,
     pass_sidecar,
     render_frame,
+    render_view_layer,
 )
 from ..properties import store_stats
 from ..render import job_from_scene, warmup_frames
-from .engine import rendering
+from . import compositor
+from .engine import Finished, rendering
+from .frame_passes import FramePasses
+from .notes import bypassed
 from .scenes import (
     DisplaySetup,
-    bypassed,
     camera_animated,
     frame_of,
     output_scene,
     pass_engine,
     scene_copy,
 )
+from .user_render import KeepingPassSetup, user_render
+
+
+def warm_up_pays(method: str) -> bool:
+    """Whether warm-up frames pay for ``method``: it reuses its history's estimates
+    (a temporal method), so a cold history makes the first frames noisier.
+
+    The other methods' history only steers the sample counts: 8 warm-up frames
+    changed a still's frame by at most 0.06 dB against Cycles' ground truth
+    (``tools/measure/apply_on_render_quality.py``: as_ccv and as_ocv, and the
+    temporal ones too, whose reuse has nothing to gain on a still), for one
+    pass render each. A still (F12, ``-f``) renders none either way.
+    """
+    return bool(METHODS[method].temporal)
 
 
 def log(text: str) -> None:
@@ -116,6 +135,8 @@ class Session:
             raise RenderError("Apply on Render does not support stereoscopy / multi-view")
         self.scene = scene
         self.deferred = deferred
+        # What the user's own render would make, read before anything changes.
+        self.user = user_render(scene, render_view_layer(scene))
         self.folder = Path(tempfile.mkdtemp(prefix="cvsss-render-"))
         self.passes = self.folder / "passes"
         self.final = self.folder / "final"
@@ -135,14 +156,19 @@ class Session:
             shutil.rmtree(self.folder, ignore_errors=True)
             raise
         self.method = self.job.methods[0]
-        self.warmup = int(settings.warmup_frames)
+        # The scene's denoiser, for the finished frames (then the passes are not denoised).
+        self.denoise = self.job.denoise
+        self.warmup = int(settings.warmup_frames) if warm_up_pays(self.method) else 0
         self.step = max(1, int(scene.frame_step))
         r = scene.render
         self.movie = bool(r.is_movie_format)
         self.overwrite, self.placeholder = bool(r.use_overwrite), bool(r.use_placeholder)
         self.notes = bypassed(scene)
-        self.setup: PassSetup | None = None
+        self.setup: KeepingPassSetup | None = None
         self.output = None
+        self.groups: list = []  # the output scene's copies of the compositor's node groups
+        self.frame_passes: FramePasses | None = None
+        self.paths: dict[int, Path] = {}  # frame -> its pass file (read again at delivery)
         self.stream: FrameStream | None = None
         self.sidecars: dict[int, dict] = {}
         self.started: list[int] = []  # frames Blender began (render_pre)
@@ -155,6 +181,7 @@ class Session:
         self.still: bool | None = None
         self.write_still = False
         self.last: np.ndarray | None = None
+        self.last_noisy: np.ndarray | None = None  # self.last before its denoise
         self.error: str | None = None
         self.cancelled = False
         self.rendered = False  # Blender's render has ended (complete or cancel)
@@ -167,7 +194,7 @@ class Session:
         self.suspended: tuple[bool, bool] | None = None  # (setup, output) put aside for a save
         try:
             if not deferred:
-                self.output = output_scene(scene, self.job.view_layer.name)
+                self.output = self._output_scene()
             self.setup = self._switch()
         except BaseException:
             self.close()
@@ -175,10 +202,28 @@ class Session:
         if self.filter is not None:
             self.filter.start()
         what = "movie: frames are encoded after the last one" if self.movie else ""
-        log(
-            f"Apply on Render: {self.method} on {engine} passes, warm-up {self.warmup} "
-            f"frame(s){'; ' + what if what else ''}"
+        warm = (
+            f"warm-up {self.warmup} frame(s) before an animation"
+            if self.warmup
+            else "no warm-up"
+            + ("" if warm_up_pays(self.method) else f" ({self.method} reuses no estimates)")
         )
+        log(
+            f"Apply on Render: {self.method} on {engine} passes, {warm}"
+            f"{'; ' + what if what else ''}"
+        )
+        if self.denoise is not None:
+            log(f"the finished frames are denoised as the scene asks: {self.denoise.describe()}")
+        if self.user.needs_passes:
+            where = " and ".join(
+                what
+                for what, on in (
+                    ("the compositor", self.user.compositor),
+                    ("the multilayer EXR", self.user.multilayer),
+                )
+                if on
+            )
+            log(f"{len(self.user.passes)} pass(es) of the view layer go to {where}")
         for note in self.notes:
             log("note: " + note)
         # Blender's own render skips them as well.
@@ -193,21 +238,41 @@ class Session:
             self.job.params.backend, self.job.methods, log, math.prod(output_size(scene))
         )
 
-    def _switch(self) -> PassSetup:
-        """The scene in the pass configuration, its passes written into the temporary folder."""
-        setup = PassSetup(
+    def _switch(self) -> KeepingPassSetup:
+        """The scene in the pass configuration, its passes written into the temporary folder:
+        the add-on's, the user's when the finished frames carry them, and the denoiser's
+        guides when the scene denoises."""
+        user = self.user if self.user.needs_passes else None
+        setup = KeepingPassSetup(
             self.scene,
             self.job.materials,
             self.job.view_layer,
             self.job.engine,
             self.job.normal,
             self.job.denoise_passes,
+            user=user,
+            guides=self.denoise is not None,
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")
         r.use_overwrite = True
         r.use_placeholder = False
+        if user is not None:
+            self.frame_passes = FramePasses(
+                user.passes, self.job.view_layer.name, setup.index_tables()
+            )
         return setup
+
+    def _output_scene(self):
+        """The output scene (:func:`.scenes.output_scene`), with the user's compositor."""
+        return output_scene(self.scene, self.job.view_layer.name, self.user.compositor, self.groups)
+
+    def _remove_output(self) -> None:
+        if self.output is not None:
+            with contextlib.suppress(ReferenceError, RuntimeError):
+                bpy.data.scenes.remove(self.output)
+            self.output = None
+        compositor.remove(self.groups)
 
     # -- saving while the render is finished (UI) ------------------------------------------
     def suspend(self) -> None:
@@ -217,9 +282,7 @@ class Session:
             return  # only between Blender's render and the end (the render thread is done)
         self.suspended = (self.setup is not None, self.output is not None)
         self.restore()
-        if self.output is not None:
-            bpy.data.scenes.remove(self.output)
-            self.output = None
+        self._remove_output()
 
     def resume(self) -> None:
         """After a save: what :meth:`suspend` put aside, again."""
@@ -232,7 +295,7 @@ class Session:
         if setup:
             self.setup = self._switch()
         if output:
-            self.output = output_scene(self.scene, self.job.view_layer.name)
+            self.output = self._output_scene()
 
     # -- history ---------------------------------------------------------------------------
     def _key(self) -> str:
@@ -255,8 +318,9 @@ class Session:
             default=str,
         )
 
-    def _open_stream(self, first: int) -> bool:
-        """The history for a render starting at ``first``; True when it needs warm-up."""
+    def open_stream(self, first: int) -> bool:
+        """The history for a render starting at ``first``; True when it needs warm-up
+        (a method whose history pays for it, in an animation: :func:`warm_up_pays`)."""
         global _last_stream
         key = self._key()
         if bpy.app.background and _last_stream is not None and _last_stream[0] == key:
@@ -267,7 +331,7 @@ class Session:
                 return False
         self.stream = FrameStream(RunSpec((self.method,), self.job.params, self.job.options))
         _last_stream = (key, self.stream) if bpy.app.background else None
-        return self.warmup > 0
+        return self.warmup > 0 and not self.still
 
     def warm_up_steps(self, first: int) -> Iterator[str]:
         """Render and process the warm-up frames before ``first`` (one step each)."""
@@ -279,6 +343,7 @@ class Session:
             copy = scene_copy(self.scene, "warm-up")
             try:
                 layer = copy.view_layers[self.job.view_layer.name]
+                self._lean(layer)
                 with frame_of(self.scene, frame):
                     copy.frame_set(frame)
                     specs = sss_materials.material_specs(self.job.materials, copy)
@@ -299,6 +364,18 @@ class Session:
             )
             log(text)
             yield text
+
+    def _lean(self, layer) -> None:
+        """A warm-up copy's view layer renders the add-on's passes only: nothing is
+        delivered or denoised from a warm-up frame."""
+        own = set(NEEDED_PASSES) | ({"use_pass_normal"} if self.job.normal else set())
+        for ident in self.user.pass_flags - own:
+            setattr(layer, ident, False)
+        cycles = getattr(layer, "cycles", None)
+        if cycles is not None:
+            for ident in self.user.cycles_flags:
+                setattr(cycles, ident, False)
+            cycles.denoising_store_passes = self.job.denoise_passes
 
     # -- frames ------------------------------------------------------------------------------
     def _internal(self):
@@ -363,9 +440,17 @@ class Session:
         rgba = np.empty((*result.composite.shape[:2], 4), np.float32)
         rgba[..., :3] = result.composite
         rgba[..., 3] = 1.0 if alpha is None else alpha
-        self.last = rgba
+        noisy = None
+        if self.denoise is not None:
+            noisy = rgba
+            guides = read_guides(path, self.job.view_layer.name)
+            rgba = denoise_frame(noisy, *guides, self.denoise)
+        self.last, self.last_noisy = rgba, noisy
+        self.paths[frame] = path
         if self.movie or self.deferred:
             np.save(self.final / f"{frame}.npy", rgba)
+            if noisy is not None and self.frame_passes is not None:
+                np.save(self.final / f"{frame}.noisy.npy", noisy)
         self.processed.append(frame)
         if not self.still:
             self.undelivered.append(frame)
@@ -376,11 +461,33 @@ class Session:
         seconds = time.perf_counter() - began
         return f"frame {frame} {self.method}: spp {result.spp:.2f}, post {seconds:.2f} s"
 
-    def _rgba(self, frame: int) -> np.ndarray | None:
+    def _rgba(self, frame: int, noisy: bool = False) -> np.ndarray | None:
         if self.last is not None and self.processed and self.processed[-1] == frame:
-            return self.last
-        path = self.final / f"{frame}.npy"
+            return self.last_noisy if noisy else self.last
+        path = self.final / (f"{frame}.noisy.npy" if noisy else f"{frame}.npy")
         return np.load(path) if path.is_file() else None
+
+    def _finished(self, frame: int) -> Finished:
+        """What :class:`.engine.ResultEngine` delivers for ``frame``: the finished frame,
+        with the view layer's passes when a compositor or a multilayer file takes them."""
+        rgba = self._rgba(frame)
+        if rgba is None or self.frame_passes is None:
+            return rgba
+        return self.frame_passes.delivery(self.paths[frame], rgba, self._rgba(frame, noisy=True))
+
+    @contextlib.contextmanager
+    def _delivering(self, scene, task) -> Iterator[None]:
+        """:class:`.engine.ResultEngine` renders ``task`` in the block, ``scene``'s Render
+        Layers nodes offering the passes it declares (and the scene's own ones after)."""
+        specs = ()
+        if self.frame_passes is not None and self.paths:
+            specs = self.frame_passes.specs(next(iter(self.paths.values())))
+        try:
+            with self._internal(), rendering(task, specs):
+                compositor.refresh_render_layers(scene)
+                yield
+        finally:
+            compositor.refresh_render_layers(scene)
 
     def deliver_next(self) -> str:
         """Write the oldest finished frame of an animation with Blender's own writer."""
@@ -389,9 +496,8 @@ class Session:
         path = out.render.frame_path(frame=frame)
         if frame in self.skip or (self.deferred and not self.overwrite and Path(path).exists()):
             return f"{path} exists, kept (Overwrite is off)"
-        rgba = self._rgba(frame)
         out.frame_start = out.frame_end = frame
-        with self._internal(), rendering(lambda _frame: rgba):
+        with self._delivering(out, self._finished):
             with bpy.context.temp_override(scene=out):
                 bpy.ops.render.render(animation=True)
         self.delivered.append((frame, path))
@@ -404,7 +510,7 @@ class Session:
         out = self.output
         frames = self.processed
         out.frame_start, out.frame_end, out.frame_step = frames[0], frames[-1], self.step
-        with self._internal(), rendering(self._rgba):
+        with self._delivering(out, self._finished):
             with bpy.context.temp_override(scene=out):
                 bpy.ops.render.render(animation=True)
         path = out.render.frame_path(frame=frames[0])
@@ -414,10 +520,11 @@ class Session:
     def display(self, write: bool) -> str:
         """Render the last finished frame on the user's scene: the Render Result (and, with
         ``write``, the still file where Blender writes it)."""
-        rgba = self.last
-        with DisplaySetup(self.scene, self.job.view_layer), self._internal():
-            with rendering(lambda _frame: rgba):
+        frame = self.processed[-1]
+        with DisplaySetup(self.scene, self.job.view_layer):
+            with self._delivering(self.scene, lambda _frame: self._finished(frame)):
                 bpy.ops.render.render(write_still=write, scene=self.scene.name)
+        compositor.refresh_render_layers(self.scene)  # the user's engine's sockets again
         if write:
             return f"frame {self.processed[-1]} -> {bpy.path.abspath(self.scene.render.filepath)}"
         return f"frame {self.processed[-1]} shown as the Render Result"
@@ -453,7 +560,7 @@ class Session:
                     yield precompile.COMPILING_STATUS  # UI: in the status bar while the next tick waits
                 if self.stream is None and self.pending:
                     first = self.pending[0][0]
-                    if self._open_stream(first):
+                    if self.open_stream(first):
                         yield from self.warm_up_steps(first)
                 while self.pending:
                     text = self.process_next()
@@ -462,7 +569,7 @@ class Session:
             self.restore()
             if self.error is None and self.processed:
                 if self.output is None:
-                    self.output = output_scene(self.scene, self.job.view_layer.name)
+                    self.output = self._output_scene()
                 if self.movie and not self.still:
                     text = self.encode()
                     log(text)
@@ -498,10 +605,7 @@ class Session:
         try:
             self.restore()
         finally:
-            if self.output is not None:
-                with contextlib.suppress(ReferenceError, RuntimeError):
-                    bpy.data.scenes.remove(self.output)
-                self.output = None
+            self._remove_output()
             for path in self.placeholders:  # frames that never came: as Blender does
                 with contextlib.suppress(OSError):
                     if path.stat().st_size == 0:

@@ -1,0 +1,339 @@
+"""Denoising a finished frame the way the scene's Cycles denoiser would have.
+
+When a Cycles render denoises (``scene.cycles.use_denoising`` and the view
+layer's Denoising), the frame the user gets is OpenImageDenoise's output.
+The pass render has Subsurface Weight 0 and no denoising of its own, so the
+finished frame F (the core's composite) is denoised afterwards with the same
+settings (:func:`scene_denoise`), guided by the pass render's Denoising
+Albedo and Denoising Normal (``view_layer.cycles.denoising_store_passes``).
+
+:func:`denoise_frame` runs Blender's compositor Denoise node (OIDN) in a
+temporary scene — Image nodes holding F and the guides → Denoise → File
+Output (32-bit multilayer EXR) in a temporary folder — and reads the result
+back. Fed Cycles' own Noisy Image and guides, the node gives Cycles' denoised
+Combined bit for bit for every prefilter, guide set and quality (the stored
+Denoising Albedo is the raw guide; the node prefilters it as Cycles does).
+Two settings have no compositor twin: OptiX (the frame gets OIDN) and Cycles'
+"follow scene" quality, which the node would take from the compositor's own
+setting, so the quality is always set explicitly.
+
+Why the finished frame and not the passes: denoising the passes the post
+reads (``--denoise-passes``, :mod:`.denoise`) and compositing them gave
+0.05–0.08 dB more against Cycles' ground truth at 4 and 16 spp and the same
+at 64 spp (``tools/measure/apply_on_render_quality.py``, 128×72), for three
+or four denoiser runs per frame instead of one, and with fixed denoiser
+settings rather than the scene's. So a scene that denoises gets its
+finished frames denoised (Apply on Render, ``cvsss render``, ``cvsss
+post``), and the passes are not denoised as well.
+
+:class:`DenoisedProcessor` applies it to a run's results (``cvsss render``
+and ``cvsss post``): the guides are read from each frame's pass file
+(:func:`read_guides`), where the pass render keeps them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import tempfile
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import bpy
+import numpy as np
+import OpenEXR
+
+from ...core.io.errors import OutputError
+from ...core.io.exr import quiet_native_stderr, use_threads
+from .denoise import tree_copy
+from .errors import RenderError
+from .internal_renders import internal_render
+
+#: Cycles' prefilter -> the Denoise node's Prefilter menu item.
+PREFILTER = {"NONE": "None", "FAST": "Fast", "ACCURATE": "Accurate"}
+#: Cycles' quality -> the Denoise node's Quality menu item (never "Follow Scene").
+QUALITY = {"HIGH": "High", "BALANCED": "Balanced", "FAST": "Fast"}
+#: Cycles' input passes -> the guides linked (albedo, normal).
+GUIDES = {
+    "RGB": (False, False),
+    "RGB_ALBEDO": (True, False),
+    "RGB_ALBEDO_NORMAL": (True, True),
+}
+
+
+@dataclass(frozen=True)
+class DenoiseSettings:
+    """What a scene asks of Cycles' denoiser for a final render.
+
+    Attributes
+    ----------
+    denoiser : {"OPENIMAGEDENOISE", "OPTIX"}
+        Cycles' choice; the finished frame is denoised with OIDN either way.
+    prefilter : {"NONE", "FAST", "ACCURATE"}
+    quality : {"HIGH", "BALANCED", "FAST"}
+    guides : {"RGB", "RGB_ALBEDO", "RGB_ALBEDO_NORMAL"}
+    gpu : bool
+        Cycles' *Use GPU* for denoising (the compositor's denoise device).
+    """
+
+    denoiser: str = "OPENIMAGEDENOISE"
+    prefilter: str = "ACCURATE"
+    quality: str = "HIGH"
+    guides: str = "RGB_ALBEDO_NORMAL"
+    gpu: bool = False
+
+    def __post_init__(self) -> None:
+        for name, table in (("prefilter", PREFILTER), ("quality", QUALITY), ("guides", GUIDES)):
+            if getattr(self, name) not in table:
+                raise ValueError(
+                    f"{name} must be one of {', '.join(table)}, got {getattr(self, name)!r}"
+                )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> DenoiseSettings:
+        """The settings a :meth:`to_dict` recorded (a pass sidecar's ``"denoise"``)."""
+        known = cls.__dataclass_fields__
+        return cls(**{k: v for k, v in dict(data).items() if k in known})
+
+    def describe(self) -> str:
+        """One line for the log, e.g. ``OIDN, prefilter ACCURATE, HIGH, albedo + normal``."""
+        guides = {
+            "RGB": "no guides",
+            "RGB_ALBEDO": "albedo",
+            "RGB_ALBEDO_NORMAL": "albedo + normal",
+        }
+        how = "OIDN" if self.denoiser == "OPENIMAGEDENOISE" else f"OIDN (for {self.denoiser})"
+        return f"{how}, prefilter {self.prefilter}, {self.quality}, {guides[self.guides]}"
+
+
+def cycles_denoise(scene) -> DenoiseSettings:
+    """The scene's Cycles denoiser settings, whether its render denoises or not."""
+    c = scene.cycles
+    return DenoiseSettings(
+        denoiser=str(c.denoiser),
+        prefilter=str(c.denoising_prefilter),
+        quality=str(c.denoising_quality),
+        guides=str(c.denoising_input_passes),
+        gpu=bool(getattr(c, "denoising_use_gpu", False)),
+    )
+
+
+def scene_denoise(scene, view_layer) -> DenoiseSettings | None:
+    """The denoiser settings of a final render of ``view_layer``, or None when it does
+    not denoise (another engine than Cycles, Denoise off in the scene or the layer)."""
+    c = getattr(scene, "cycles", None)
+    if scene.render.engine != "CYCLES" or c is None or not c.use_denoising:
+        return None
+    layer = getattr(view_layer, "cycles", None)
+    if layer is not None and not layer.use_denoising:
+        return None
+    return cycles_denoise(scene)
+
+
+def _image(name: str, rgb: np.ndarray, non_color: bool):
+    """A packed float image holding ``rgb`` ((H, W, 3), top row first) with alpha 1.
+
+    Alpha 1: the compositor would premultiply a straight alpha; the denoiser
+    reads RGB only, and the caller keeps the frame's own alpha.
+    """
+    height, width = rgb.shape[:2]
+    rgba = np.ones((height, width, 4), np.float32)
+    rgba[..., :3] = rgb[..., :3]
+    image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
+    image.colorspace_settings.name = "Non-Color" if non_color else "Linear Rec.709"
+    image.pixels.foreach_set(np.ascontiguousarray(rgba[::-1]).reshape(-1))
+    # Packed: a generated image is made again from its settings when its buffer is freed.
+    image.pack()
+    return image
+
+
+@contextlib.contextmanager
+def _datablocks() -> Iterator[list]:
+    """A list the block appends temporary datablocks to; all removed on exit."""
+    made: list = []
+    try:
+        yield made
+    finally:
+        for block in reversed(made):
+            with contextlib.suppress(ReferenceError):
+                _remove(block)
+
+
+def _remove(block) -> None:
+    if isinstance(block, bpy.types.Scene):
+        bpy.data.scenes.remove(block)
+    elif isinstance(block, bpy.types.NodeTree):
+        bpy.data.node_groups.remove(block)
+    else:
+        bpy.data.images.remove(block)
+
+
+def denoise_frame(
+    rgba: np.ndarray,
+    albedo: np.ndarray | None,
+    normal: np.ndarray | None,
+    settings: DenoiseSettings,
+) -> np.ndarray:
+    """OIDN on a finished frame, as ``settings`` ask (Blender's compositor Denoise node).
+
+    Parameters
+    ----------
+    rgba : (H, W, 3|4) float, linear, top row first
+        The finished frame; its alpha (if any) is kept as it is.
+    albedo : (H, W, 3) float or None
+        The pass render's Denoising Albedo (raw: the node prefilters it).
+    normal : (H, W, 3) float or None
+        The pass render's Denoising Normal.
+    settings : DenoiseSettings
+
+    Returns
+    -------
+    (H, W, C) float32, like ``rgba``: denoised RGB, the same alpha.
+
+    Raises
+    ------
+    RenderError
+        The guides the settings ask for are missing, or the render was cancelled.
+    OutputError
+        The compositor wrote no file.
+    """
+    height, width = rgba.shape[:2]
+    use_albedo, use_normal = GUIDES[settings.guides]
+    if (use_albedo and albedo is None) or (use_normal and normal is None):
+        raise RenderError(
+            "denoising the finished frame needs the pass render's Denoising Albedo and Normal"
+        )
+    with (
+        tempfile.TemporaryDirectory(prefix="cvsss-denoise-frame-") as folder,
+        _datablocks() as made,
+    ):
+        scene = bpy.data.scenes.new("cvsss denoise frame")
+        made.append(scene)
+        tree = bpy.data.node_groups.new("cvsss denoise frame", "CompositorNodeTree")
+        made.append(tree)
+        r = scene.render
+        r.resolution_x, r.resolution_y, r.resolution_percentage = width, height, 100
+        r.use_compositing, r.use_sequencer = True, False
+        r.compositor_denoise_device = "GPU" if settings.gpu else "CPU"
+        scene.compositing_node_group = tree
+        denoise = tree.nodes.new("CompositorNodeDenoise")
+        inputs = [("Image", rgba, False)]
+        if use_albedo:
+            inputs.append(("Albedo", albedo, False))
+        if use_normal:
+            inputs.append(("Normal", normal, True))
+        for socket, pixels, non_color in inputs:
+            image = _image(f"cvsss denoise {socket}", pixels, non_color)
+            made.append(image)
+            node = tree.nodes.new("CompositorNodeImage")
+            node.image = image
+            source = node.outputs["Image"]
+            tree.links.new(
+                source if socket == "Image" else tree_copy(tree, source), denoise.inputs[socket]
+            )
+        denoise.inputs["HDR"].default_value = True
+        denoise.inputs["Prefilter"].default_value = PREFILTER[settings.prefilter]
+        denoise.inputs["Quality"].default_value = QUALITY[settings.quality]
+        out = tree.nodes.new("CompositorNodeOutputFile")
+        out.directory = folder
+        out.file_name = "denoised"
+        out.save_as_render = False  # linear data, no view transform
+        fmt = out.format
+        if hasattr(fmt, "media_type"):
+            fmt.media_type = "MULTI_LAYER_IMAGE"
+        fmt.file_format = "OPEN_EXR_MULTILAYER"
+        fmt.color_depth = "32"
+        fmt.exr_codec = "NONE"
+        out.file_output_items.new("RGBA", "F")
+        tree.links.new(denoise.outputs["Image"], out.inputs["F"])
+        with internal_render():
+            finished = "FINISHED" in bpy.ops.render.render(scene=scene.name)
+        if not finished:
+            raise RenderError("denoising the finished frame was cancelled")
+        written = sorted(Path(folder).glob("*.exr"))
+        if len(written) != 1:
+            raise OutputError(Path(folder), "the compositor wrote no denoised frame")
+        exr = OpenEXR.File(str(written[0]), separate_channels=True)
+        channels = {key: np.asarray(c.pixels) for p in exr.parts for key, c in p.channels.items()}
+    result = np.array(rgba, dtype=np.float32, copy=True)
+    for i, channel in enumerate("RGB"):
+        result[..., i] = channels[f"F.{channel}"]
+    return result
+
+
+#: The guiding passes of Cycles' denoiser, as the pass render stores them.
+GUIDE_PASSES = {"Denoising Albedo": "RGB", "Denoising Normal": "XYZ"}
+
+
+def read_guides(path: str | os.PathLike, layer: str) -> tuple[np.ndarray | None, ...]:
+    """(albedo, normal) of view layer ``layer`` in a pass EXR: (H, W, 3) float32 each, top
+    row first, None for one the file lacks."""
+    use_threads()
+    with quiet_native_stderr():
+        exr = OpenEXR.File(os.fspath(path), separate_channels=True)
+    channels = {key: c.pixels for part in exr.parts for key, c in part.channels.items()}
+    guides = []
+    for name, letters in GUIDE_PASSES.items():
+        keys = [f"{layer}.{name}.{c}" for c in letters]
+        guides.append(
+            np.stack([channels[k] for k in keys], -1).astype(np.float32)
+            if all(k in channels for k in keys)
+            else None
+        )
+    return tuple(guides)
+
+
+class DenoisedProcessor:
+    """A method's processor whose results carry a denoised composite (the finished frame
+    as the scene's denoiser would give it); everything else is the wrapped processor's.
+
+    Parameters
+    ----------
+    processor : core.method.Processor
+    settings : DenoiseSettings
+    guides : callable frame number -> (albedo, normal), or None for a frame that is
+        not denoised (warm-up frames, whose results nobody sees)
+    """
+
+    def __init__(
+        self,
+        processor,
+        settings: DenoiseSettings,
+        guides: Callable[[int], tuple[np.ndarray | None, np.ndarray | None] | None],
+    ) -> None:
+        self.processor = processor
+        self.settings = settings
+        self.guides = guides
+
+    def process(self, frame):
+        result = self.processor.process(frame)
+        guides = self.guides(int(frame.number))
+        if guides is None:
+            return result
+        composite = denoise_frame(result.composite, *guides, self.settings)
+        return dataclasses.replace(result, composite=composite)
+
+    def __getattr__(self, name: str):
+        return getattr(self.processor, name)
+
+
+def denoising(
+    processors: Callable,
+    settings: DenoiseSettings,
+    guides: Callable[[int], tuple[np.ndarray | None, np.ndarray | None] | None],
+) -> Callable:
+    """``processors`` (as :class:`core.run.SequenceRun` takes them) whose methods'
+    results are denoised (:class:`DenoisedProcessor`); the reference is left as it is."""
+
+    def make(name, params, options):
+        processor = processors(name, params, options)
+        if name == "reference":
+            return processor
+        return DenoisedProcessor(processor, settings, guides)
+
+    return make

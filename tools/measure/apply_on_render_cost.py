@@ -1,0 +1,220 @@
+"""Apply on Render's time per delivered frame against the plain render's (issue 44).
+
+The plain render is Cycles with its own subsurface (Random Walk) and its
+denoiser; Apply on Render renders the same scene's passes and delivers the
+finished frames, denoised as the scene asks, warm-up included (as the
+add-on decides for the method and the *Warm-up Frames* setting). Two cases,
+each through ``bpy.ops.render.render`` in background mode as ``blender -b``
+runs it, PNG output:
+
+- an animation of ``--frames`` frames (``-a``): seconds per delivered frame;
+- an F12 still (``-f``, ``write_still``).
+
+Rounds interleave the four renders (plain and Apply on Render, animation and
+still) so that the machine's drift hits both; the first round is not timed
+(it compiles the numba kernels and loads OpenImageDenoise). It prints the
+medians, their ratio and where Apply on Render's time went (the add-on's
+steps; the rest is Blender's pass render). From the repository root::
+
+    python tools/measure/apply_on_render_cost.py --size 128x72 --spp 16 --frames 8 --rounds 3
+    python tools/measure/apply_on_render_cost.py --size 128x72 --spp 64 --method as_ccv_t
+    python tools/measure/apply_on_render_cost.py --compositor --multilayer
+
+(``--compositor``: a compositor of a few nodes reading a pass; ``--multilayer``: a
+multilayer EXR of a few passes, Cryptomatte among them, instead of PNG.)
+
+(``python`` with ``bpy`` 5.0 and the ``cvsss`` package importable.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import functools
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import bpy
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from scene import build_scene
+
+import cvsss
+from cvsss.sss_addon.blender.apply_on_render import session as aor_session
+
+#: Seconds spent in the add-on's steps of the render being timed (name -> total).
+SPENT: collections.Counter = collections.Counter()
+
+
+def _timed(name: str, function):
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        began = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            SPENT[name] += time.perf_counter() - began
+
+    return wrapper
+
+
+def _timed_steps(name: str, function):
+    """The same for a generator function: the time spent inside its steps."""
+
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        steps = function(*args, **kwargs)
+        while True:
+            began = time.perf_counter()
+            try:
+                item = next(steps)
+            except StopIteration:
+                SPENT[name] += time.perf_counter() - began
+                return
+            SPENT[name] += time.perf_counter() - began
+            yield item
+
+    return wrapper
+
+
+def instrument() -> None:
+    """Time the session's steps (the pass render is Blender's own, the rest)."""
+    session = aor_session.Session
+    session.warm_up_steps = _timed_steps("warm-up", session.warm_up_steps)
+    session.process_next = _timed("post-process (incl. denoise)", session.process_next)
+    aor_session.denoise_frame = _timed("  of which denoise", aor_session.denoise_frame)
+    session.deliver_next = _timed("delivery", session.deliver_next)
+    session.display = _timed("delivery", session.display)
+
+
+def render(scene, out: Path, apply: bool, still: bool) -> float:
+    """Seconds of one render of ``scene`` (animation or still) into ``out``."""
+    scene.sss_settings.apply_on_render = apply
+    scene.render.filepath = str(out / ("still" if still else "f_"))
+    began = time.perf_counter()
+    result = bpy.ops.render.render(animation=not still, write_still=still)
+    seconds = time.perf_counter() - began
+    if "FINISHED" not in result:
+        raise SystemExit(f"the render did not finish: {result}")
+    return seconds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", default="128x72", help="WxH pixels (default 128x72)")
+    parser.add_argument("--spp", type=int, default=16, help="Cycles samples (default 16)")
+    parser.add_argument("--frames", type=int, default=8, help="animation length (default 8)")
+    parser.add_argument("--rounds", type=int, default=3, help="timed rounds (default 3)")
+    parser.add_argument("--method", default="as_ccv", help="cvsss method (default as_ccv)")
+    parser.add_argument(
+        "--warmup", type=int, default=None, help="Warm-up Frames (default: the setting's default)"
+    )
+    parser.add_argument(
+        "--compositor",
+        action="store_true",
+        help="a compositor on the render (Color Balance, Glare, the Mist pass mixed in)",
+    )
+    parser.add_argument(
+        "--multilayer",
+        action="store_true",
+        help="32-bit multilayer EXR output with Normal, Mist, Object Index and Cryptomatte "
+        "passes (instead of PNG)",
+    )
+    args = parser.parse_args()
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    scene = build_scene(width, height, args.spp, args.frames)
+    cvsss.register()
+    settings = scene.sss_settings
+    settings.method = args.method
+    if args.warmup is not None:
+        settings.warmup_frames = args.warmup
+    scene.render.image_settings.file_format = "PNG"
+    if args.multilayer:
+        multilayer(scene)
+    if args.compositor:
+        compositor(scene)
+    instrument()
+    folder = Path(tempfile.mkdtemp(prefix="cvsss-cost-"))
+    times: dict[str, list[float]] = collections.defaultdict(list)
+    spent: dict[str, list[collections.Counter]] = collections.defaultdict(list)
+    cases = [("animation", False), ("still", True)]
+    for index in range(args.rounds + 1):
+        for name, still in cases if index % 2 else cases[::-1]:
+            for apply in (False, True) if index % 2 else (True, False):
+                SPENT.clear()
+                seconds = render(scene, folder / f"{index}-{name}-{apply}", apply, still)
+                if index:
+                    key = f"{name} {'apply' if apply else 'plain'}"
+                    times[key].append(seconds)
+                    if apply:
+                        spent[name].append(SPENT.copy())
+    frames = args.frames
+    extras = [name for name in ("compositor", "multilayer") if getattr(args, name)]
+    print(
+        f"{width}x{height}, {args.spp} spp, {args.method}, Warm-up Frames "
+        f"{settings.warmup_frames}{''.join(', ' + e for e in extras)}; medians of "
+        f"{args.rounds} interleaved rounds (load average at the end {_load()}):"
+    )
+    for name, per in (("animation", frames), ("still", 1)):
+        plain = statistics.median(times[f"{name} plain"])
+        apply = statistics.median(times[f"{name} apply"])
+        what = f"animation of {frames} frames" if name == "animation" else "F12 still"
+        print(
+            f"  {what}: plain {plain / per:.3f} s per frame, Apply on Render "
+            f"{apply / per:.3f} s per frame: ratio {apply / plain:.2f}"
+        )
+        steps = sorted({k for c in spent[name] for k in c})
+        parts = ", ".join(
+            f"{k} {statistics.median(c[k] for c in spent[name]) / per:.3f}" for k in steps
+        )
+        print(f"    Apply on Render's steps (s per frame): {parts}")
+    print("  runs (s):", {k: [round(t, 2) for t in v] for k, v in times.items()})
+
+
+def multilayer(scene) -> None:
+    """32-bit multilayer EXR output of the view layer's passes, a few of them on."""
+    layer = scene.view_layers[0]
+    layer.use_pass_normal = layer.use_pass_mist = layer.use_pass_object_index = True
+    layer.use_pass_cryptomatte_object = True
+    settings = scene.render.image_settings
+    settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+
+
+def compositor(scene) -> None:
+    """A compositor of the kind a user has: Color Balance and Glare on the image, the Mist
+    pass added."""
+    layer = scene.view_layers[0]
+    layer.use_pass_mist = True
+    group = bpy.data.node_groups.new("compositor", "CompositorNodeTree")
+    group.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    layers = group.nodes.new("CompositorNodeRLayers")
+    layers.scene, layers.layer = scene, layer.name
+    balance = group.nodes.new("CompositorNodeColorBalance")
+    glare = group.nodes.new("CompositorNodeGlare")
+    mix = group.nodes.new("ShaderNodeMix")
+    mix.data_type, mix.blend_type = "RGBA", "ADD"
+    mix.inputs["Factor"].default_value = 0.1
+    out = group.nodes.new("NodeGroupOutput")
+    group.links.new(layers.outputs["Image"], balance.inputs["Image"])
+    group.links.new(balance.outputs[0], glare.inputs["Image"])
+    group.links.new(glare.outputs[0], mix.inputs[6])
+    group.links.new(layers.outputs["Mist"], mix.inputs[7])
+    group.links.new(mix.outputs[2], out.inputs[0])
+    scene.compositing_node_group = group
+    scene.render.use_compositing = True
+
+
+def _load() -> str:
+    try:
+        return Path("/proc/loadavg").read_text().split()[0]
+    except OSError:
+        return "?"
+
+
+if __name__ == "__main__":
+    main()
