@@ -20,13 +20,16 @@ Subsurface Radius ``ρ_c`` and Scale ``s`` but not the profile:
     paths enter through a Lambertian entry, half by refraction with alpha = 1.
 
 The walk's profile is not Burley's, but in units of ℓ it depends on the
-albedo A only (the walk is scale invariant; the anisotropy g keeps the reduced
+albedo A (and the anisotropy and view angle) only (the walk is scale invariant; the anisotropy g keeps the reduced
 extinction ``1/ℓ``). The model here is the Burley profile that best fits it:
 
     d_c = ℓ_c · f_m(A_c),   total reflectance = e_m(A_c) · (Cycles' albedo pass),
 
-with ``f_m`` and ``e_m`` tabulated per method m over the albedo and
-interpolated linearly (held at the end values outside the table). The tables
+with ``f_m`` and ``e_m`` tabulated per method m over the albedo, one table
+per Subsurface Anisotropy node (it changes f by up to 30 %), interpolated
+linearly in both (held at the end values outside the tables), for a view
+along the normal. The energy also depends on the view angle (the walk starts
+along the refracted view ray): :func:`view_factor` scales it per pixel. The tables
 (``core/data/random_walk_fit.json``) are least-squares fits of a Burley edge
 response to the shadow edges of Cycles renders of a semi-infinite slab
 (``tools/random_walk/fit.py``, which also states the fit's error). Christensen
@@ -41,6 +44,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -161,24 +165,93 @@ def mean_free_path(
 
 
 @functools.lru_cache(maxsize=4)
-def _load(path: str) -> dict:
+def _load(path: str) -> tuple[dict, dict, dict]:
     data = json.loads(Path(path).read_text())
     if data.get("format") != FIT_FORMAT:
         raise ValueError(f"{path}: not a random-walk fit (format {data.get('format')!r})")
-    tables = {}
-    for method, t in data["methods"].items():
-        a = np.asarray(t["albedo"], dtype=np.float64)
-        f = np.asarray(t["d_scale"], dtype=np.float64)
-        e = np.asarray(t["energy"], dtype=np.float64)
-        if not (a.ndim == 1 and a.shape == f.shape == e.shape and np.all(np.diff(a) > 0)):
-            raise ValueError(f"{path}: table of {method} is malformed")
-        tables[method] = (a, f, e)
-    return tables
+    tables, views, curves = {}, {}, {}
+    for method, entry in data["methods"].items():
+        rows = []
+        for t in entry["tables"]:
+            a = np.asarray(t["albedo"], dtype=np.float64)
+            f = np.asarray(t["d_scale"], dtype=np.float64)
+            e = np.asarray(t["energy"], dtype=np.float64)
+            if not (a.ndim == 1 and a.shape == f.shape == e.shape and np.all(np.diff(a) > 0)):
+                raise ValueError(f"{path}: a table of {method} is malformed")
+            rows.append((float(t["anisotropy"]), a, f, e))
+        rows.sort(key=lambda row: row[0])
+        if not rows or rows[0][0] != 0.0:
+            raise ValueError(f"{path}: {method} has no table at anisotropy 0")
+        tables[method] = rows
+        v = entry["view"]
+        mu = np.asarray(v["cos_view"], dtype=np.float64)
+        a = np.asarray(v["albedo"], dtype=np.float64)
+        e = np.asarray(v["energy"], dtype=np.float64)
+        if not (e.shape == (mu.size, a.size) and mu[0] == 1.0 and np.all(np.diff(mu) < 0)):
+            raise ValueError(f"{path}: the view table of {method} is malformed")
+        # Relative to the normal view: the anisotropy tables carry the level.
+        views[method] = (mu[::-1].copy(), a, (e / e[:1])[::-1].copy())
+        c = entry.get("curvature")
+        if c is not None:
+            x = np.asarray(c["ell_curvature"], dtype=np.float64)
+            a = np.asarray(c["albedo"], dtype=np.float64)
+            g = np.asarray(c["factor"], dtype=np.float64)
+            if not (g.shape == (x.size, a.size) and x[0] == 0.0 and np.all(np.diff(x) > 0)):
+                raise ValueError(f"{path}: the curvature table of {method} is malformed")
+            curves[method] = (x, a, g)
+    return tables, views, curves
 
 
-def fit_tables(path: str | Path = FIT_PATH) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """method -> (albedo nodes, d scale f, energy e), each (N,) float64, from the data file."""
-    return _load(str(Path(path).resolve()))
+def fit_tables(path: str | Path = FIT_PATH) -> dict[str, list[tuple]]:
+    """method -> [(anisotropy g, albedo nodes, d scale f, energy e), ...] sorted by g.
+
+    Each table's arrays are (N,) float64 (N may differ between tables).
+    """
+    return _load(str(Path(path).resolve()))[0]
+
+
+def curvature_tables(path: str | Path = FIT_PATH) -> dict[str, tuple]:
+    """method -> (ℓ·H nodes (M,) ascending from 0, albedo nodes (N,), (M, N) factor)."""
+    return _load(str(Path(path).resolve()))[2]
+
+
+def view_tables(path: str | Path = FIT_PATH) -> dict[str, tuple]:
+    """method -> (cos_view nodes (M,) ascending, albedo nodes (N,), (M, N) energy relative to
+    the normal view's)."""
+    return _load(str(Path(path).resolve()))[1]
+
+
+def lookup(tables: list[tuple], albedo, anisotropy: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(f, e) per channel from one method's tables (:func:`fit_tables`).
+
+    Linear in the albedo within each table (held at its end values outside),
+    then linear in the anisotropy between the two tables around it (held at
+    the last table's anisotropy beyond it).
+
+    Parameters
+    ----------
+    tables : list of (g, albedo nodes (N,), f (N,), e (N,)), sorted by g, first g = 0
+    albedo : (3,) float in [0, 1]
+    anisotropy : float in [0, 0.9]
+
+    Returns
+    -------
+    f, e : (3,) float64
+    """
+    albedo = np.asarray(albedo, dtype=np.float64)
+    gs = np.array([t[0] for t in tables])
+    g = float(np.clip(anisotropy, gs[0], gs[-1]))
+    hi = int(np.searchsorted(gs, g, side="left"))
+    lo = max(hi - 1, 0)
+    hi = min(hi, len(gs) - 1)
+    vals = []
+    for i in (lo, hi):
+        _, a, f, e = tables[i]
+        vals.append((np.interp(albedo, a, f), np.interp(albedo, a, e)))
+    t = 0.0 if hi == lo else (g - gs[lo]) / (gs[hi] - gs[lo])
+    f = (1 - t) * vals[0][0] + t * vals[1][0]
+    e = (1 - t) * vals[0][1] + t * vals[1][1]
+    return f, e
 
 
 def shape(
@@ -187,6 +260,7 @@ def shape(
     albedo,
     method: str = "RANDOM_WALK",
     subsurface_ior: float = 1.4,
+    anisotropy: float = 0.0,
     path: str | Path = FIT_PATH,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Burley shape d and energy factor per channel modelling ``method``'s profile.
@@ -199,6 +273,7 @@ def shape(
         profile depends on it
     method : one of :data:`METHODS`
     subsurface_ior : float, Subsurface IOR (RANDOM_WALK_SKIN only)
+    anisotropy : float, Subsurface Anisotropy (clipped to [0, 0.9] as Cycles does)
     path : the fitted tables (default: the shipped ones)
 
     Returns
@@ -210,9 +285,10 @@ def shape(
 
     Notes
     -----
-    The fit holds for Subsurface Anisotropy 0, IOR 1.5 and Roughness 0.5
-    (RANDOM_WALK's entry); the data file states how far other values move the
-    measured profile. A channel with radius 0 gets d = 0 (no scattering).
+    Fitted at IOR 1.5 and Roughness 0.5 (RANDOM_WALK's entry) and Subsurface
+    IOR 1.4 (beyond its part in Skin's ℓ, which is exact): the data file's
+    ``errors.sensitivity`` shows that other values move f by about 1 % and e
+    by up to 3 %. A channel with radius 0 gets d = 0 (no scattering).
 
     >>> d, e = shape([1.0, 1.0, 1.0], 0.1, [0.8, 0.8, 0.8], "BURLEY")
     >>> [round(float(v), 6) for v in d], e.tolist()
@@ -221,6 +297,144 @@ def shape(
     ell = mean_free_path(radius, scale, albedo, method, subsurface_ior)
     if method == "BURLEY":
         return ell, np.ones(3)
+    if not math.isfinite(anisotropy):
+        raise ValueError(f"anisotropy must be a finite number, got {anisotropy!r}")
     a = np.clip(_triple("albedo", albedo), 0.0, 1.0)
-    nodes, f, e = fit_tables(path)[method]
-    return ell * np.interp(a, nodes, f), np.interp(a, nodes, e)
+    g = min(max(float(anisotropy), ANISOTROPY_RANGE[0]), ANISOTROPY_RANGE[1])
+    f, e = lookup(fit_tables(path)[method], a, g)
+    return ell * f, e
+
+
+def view_factor(
+    albedo, cos_view, method: str = "RANDOM_WALK", path: str | Path = FIT_PATH
+) -> np.ndarray:
+    """How the walk's reflectance changes with the view angle, relative to the normal view.
+
+    Cycles' walk starts along the view ray refracted into the surface: seen at
+    a grazing angle it starts shallow and more light comes back out (Burley's
+    reflectance does not depend on the view). Multiply the energy of
+    :func:`shape` by this per pixel. Measured at anisotropy 0 (used for every
+    anisotropy); bilinear in the view cosine and the albedo, held at the
+    table's ends (85 degrees is its last node).
+
+    Parameters
+    ----------
+    albedo : (3,) float, Base Color (clipped to [0, 1])
+    cos_view : (...) float, |cos| of the angle between the view ray and the normal
+    method : one of :data:`METHODS` (BURLEY: 1)
+
+    Returns
+    -------
+    (..., 3) float64, dimensionless (1 at cos_view = 1)
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    mu = np.clip(np.abs(np.asarray(cos_view, dtype=np.float64)), 0.0, 1.0)
+    if method == "BURLEY":
+        return np.ones((*mu.shape, 3))
+    a = np.clip(_triple("albedo", albedo), 0.0, 1.0)
+    nodes_mu, nodes_a, rel = view_tables(path)[method]
+    return _bilinear(a, mu, nodes_mu, nodes_a, rel)
+
+
+def _bilinear(albedo: np.ndarray, x: np.ndarray, nodes_x, nodes_a, table) -> np.ndarray:
+    """table (M, N) over (nodes_x, nodes_a) at per-channel albedo (3,) and x (...): (..., 3)."""
+    cols = np.stack([[np.interp(albedo[c], nodes_a, row) for row in table] for c in range(3)])
+    out = np.empty((*x.shape, 3))
+    for c in range(3):
+        out[..., c] = np.interp(x, nodes_x, cols[c])
+    return out
+
+
+def curvature_factor(
+    albedo, ell_curvature, method: str = "RANDOM_WALK", path: str | Path = FIT_PATH
+) -> np.ndarray:
+    """How a convex surface raises the walk's reflectance, relative to a flat one.
+
+    On a sphere of radius R a walk that would be absorbed deep below a flat
+    surface leaves through the curved one: uniformly lit spheres reflect
+    1 + ~1.3·ℓ/R times the slab's reflectance (Burley's post-process, which keeps
+    the lighting's level, does not). Multiply the energy of :func:`shape` by
+    this per pixel and channel. Tabulated over ``x = ℓ_c·H`` (ℓ_c the channel's
+    mean free path, :func:`mean_free_path`; H the mean curvature, 1/R for a
+    sphere, e.g. :func:`mean_curvature`) and the albedo, averaged over the view
+    angles of the sphere; bilinear, held at the table's largest x; concave
+    surfaces (x < 0) count as flat.
+
+    Parameters
+    ----------
+    albedo : (3,) float, Base Color (clipped to [0, 1])
+    ell_curvature : (..., 3) or (...) float, ℓ_c·H per pixel (and channel), dimensionless
+    method : one of :data:`METHODS` (BURLEY: 1)
+
+    Returns
+    -------
+    (..., 3) float64, dimensionless (1 on a flat surface)
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    x = np.maximum(np.nan_to_num(np.asarray(ell_curvature, dtype=np.float64)), 0.0)
+    if method == "BURLEY":
+        return np.ones(x.shape if x.shape[-1:] == (3,) else (*x.shape, 3))
+    a = np.clip(_triple("albedo", albedo), 0.0, 1.0)
+    curves = curvature_tables(path)
+    if method not in curves:
+        return np.ones(x.shape if x.shape[-1:] == (3,) else (*x.shape, 3))
+    nodes_x, nodes_a, table = curves[method]
+    if x.shape[-1:] == (3,) and x.ndim >= 1:
+        per = [_bilinear(a, x[..., c], nodes_x, nodes_a, table)[..., c] for c in range(3)]
+        return np.stack(per, axis=-1)
+    return _bilinear(a, x, nodes_x, nodes_a, table)
+
+
+def mean_curvature(points: np.ndarray, normals: np.ndarray, labels=None) -> np.ndarray:
+    """Mean curvature H per pixel of a depth-buffer surface (1/scene unit; > 0 convex).
+
+    ``H ≈ ½ Σ_axis Δn·ΔP / |ΔP|²`` over the image's two axes, with central
+    differences where both neighbours continue the surface (their steps within a
+    factor 2 of each other), else the shorter one-sided step, else nothing (0).
+    Exact for a sphere seen from outside (1/R); a cylinder gives 1/(2R).
+
+    Parameters
+    ----------
+    points : (H, W, 3) float, camera-space positions (scene units; non-finite: no surface)
+    normals : (H, W, 3) float, unit normals turned towards the camera
+    labels : (H, W) int or None, e.g. the object or material index: a neighbour
+        with another label does not continue the surface
+
+    Returns
+    -------
+    (H, W) float64, 0 where it cannot be estimated
+    """
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if p.ndim != 3 or p.shape[-1] != 3 or n.shape != p.shape:
+        raise ValueError(f"points and normals must be (H, W, 3), got {p.shape} and {n.shape}")
+    total = np.zeros(p.shape[:2])
+    count = np.zeros(p.shape[:2])
+    lab = None if labels is None else np.asarray(labels)
+    for axis in (0, 1):
+        steps = []
+        for shift in (1, -1):
+            with np.errstate(invalid="ignore"):  # inf − inf off the surface
+                dp = np.roll(p, -shift, axis=axis) - p
+                dn = np.roll(n, -shift, axis=axis) - n
+            ok = np.all(np.isfinite(dp), axis=-1) & np.all(np.isfinite(dn), axis=-1)
+            edge = [slice(None)] * 2
+            edge[axis] = -1 if shift == 1 else 0
+            ok[tuple(edge)] = False  # np.roll wraps around the border
+            if lab is not None:
+                ok &= np.roll(lab, -shift, axis=axis) == lab
+            with np.errstate(invalid="ignore", divide="ignore"):
+                length2 = np.sum(dp * dp, axis=-1)
+                kappa = np.sum(dn * dp, axis=-1) / length2
+            ok &= length2 > 0
+            steps.append((ok, np.where(ok, length2, np.inf), np.where(ok, kappa, 0.0)))
+        (ok_f, l_f, k_f), (ok_b, l_b, k_b) = steps
+        both = ok_f & ok_b & (l_f <= 4.0 * l_b) & (l_b <= 4.0 * l_f)  # |ΔP| within 2x
+        one = np.where(l_f <= l_b, k_f, k_b)
+        kappa = np.where(both, 0.5 * (k_f + k_b), np.where(ok_f | ok_b, one, 0.0))
+        total += kappa
+        count += ok_f | ok_b
+    with np.errstate(invalid="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), 0.0)

@@ -11,6 +11,9 @@ albedo is resolved alike by the pixel grid. Run with the project on the path::
     python tools/random_walk/cases.py scale > scale.jsonl
     python tools/random_walk/cases.py sensitivity > sens.jsonl
     python tools/random_walk/cases.py holdout > holdout.jsonl
+    python tools/random_walk/cases.py anisotropy --samples 256 > anisotropy.jsonl
+    python tools/random_walk/cases.py view > view.jsonl
+    python tools/random_walk/cases.py curvature --samples 512 > curvature.jsonl
     python tools/random_walk/cases.py spheres > spheres.jsonl   # needs the fitted data
 """
 
@@ -46,6 +49,14 @@ FIT_ALBEDOS = (
     0.95,
     0.98,
 )
+#: Subsurface Anisotropy nodes beyond 0 (Cycles clamps it to [0, 0.9]) and their albedos.
+ANISOTROPIES = (0.3, 0.6, 0.9)
+ANISOTROPY_ALBEDOS = (0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.85, 0.95)
+#: Sphere radii in mean free paths, and the albedos, of the curvature grid.
+CURVATURE_RADII = (3, 5, 10, 20, 50)
+CURVATURE_ALBEDOS = ((0.05, 0.15, 0.3), (0.45, 0.6, 0.75), (0.85, 0.9, 0.95))
+#: View angles (degrees from the normal) of the energy's view dependence.
+VIEW_ANGLES = (30, 45, 60, 75, 85)
 PIXEL = 0.001  # scene units
 SCALE = 0.05  # Subsurface Scale
 
@@ -149,6 +160,101 @@ def grid(kind: str, samples: int, target: float) -> list[dict]:
             for i, alb in enumerate(triples(FIT_ALBEDOS)):
                 out.append(case(f"fit_{short[method]}_{i}", method, alb, target, samples))
         out.append(case("fit_burley_0", "BURLEY", [0.1, 0.5, 0.9], target, samples))
+    elif kind == "anisotropy":
+        # Subsurface Anisotropy moves the profile by up to 30 % (sensitivity grid): a
+        # coarser table per anisotropy node, fewer samples.
+        for method in ("RANDOM_WALK", "RANDOM_WALK_SKIN"):
+            for g in ANISOTROPIES:
+                for i, alb in enumerate(triples(ANISOTROPY_ALBEDOS)):
+                    c = case(
+                        f"fit_{short[method]}_g{g:g}_{i}",
+                        method,
+                        alb,
+                        target,
+                        samples,
+                        anisotropy=g,
+                    )
+                    out += [
+                        c,
+                        {
+                            **c,
+                            "name": c["name"].replace("fit_", "uniform_"),
+                            "occluder": False,
+                            "width": 32,
+                            "height": 32,
+                        },
+                    ]
+            for g in (0.45, 0.75):
+                c = case(
+                    f"holdout_{short[method]}_g{g:g}",
+                    method,
+                    [0.12, 0.45, 0.88],
+                    target,
+                    samples,
+                    seed=7,
+                    anisotropy=g,
+                )
+                out += [
+                    c,
+                    {
+                        **c,
+                        "name": c["name"].replace("holdout_", "holdoutuni_"),
+                        "occluder": False,
+                        "width": 32,
+                        "height": 32,
+                    },
+                ]
+    elif kind == "view":
+        # Random-walk paths enter by refraction of the view ray: the reflectance depends
+        # on the view angle (Burley's does not). The fit's materials, lit everywhere,
+        # seen from VIEW_ANGLES; and a few shadow edges at 60 degrees.
+        for c in grid("uniform", samples, target):
+            for angle in VIEW_ANGLES:
+                if c["method"] == "BURLEY" and angle != VIEW_ANGLES[-1]:
+                    continue
+                out.append(
+                    {
+                        **c,
+                        "name": c["name"].replace("uniform_", f"view{angle}_"),
+                        "view_angle": float(angle),
+                    }
+                )
+        for c in grid("fit", samples, target):
+            if c["name"][-1] in "135" or c["method"] == "BURLEY":
+                out.append(
+                    {
+                        **c,
+                        "name": c["name"].replace("fit_", "edge60_"),
+                        "view_angle": 60.0,
+                        "samples": samples // 2,
+                    }
+                )
+    elif kind == "curvature":
+        # Spheres of radius R = k·ℓ in a uniform white world: the energy against the
+        # view angle (across the image) and the curvature ℓ/R.
+        for method in ("RANDOM_WALK", "RANDOM_WALK_SKIN"):
+            for i, alb in enumerate(CURVATURE_ALBEDOS):
+                ell_per_radius = mean_free_path([1, 1, 1], SCALE, alb, method)
+                for k in CURVATURE_RADII:
+                    sphere = 0.05
+                    radius = (sphere / k / ell_per_radius).round(6).tolist()
+                    out.append(
+                        {
+                            "name": f"curv_{short[method]}_{i}_k{k:g}",
+                            "geometry": "sphere",
+                            "method": method,
+                            "albedo": list(alb),
+                            "radius": radius,
+                            "scale": SCALE,
+                            "sphere_radius": sphere,
+                            "pixel": 2.2 * sphere / 64,
+                            "width": 64,
+                            "height": 64,
+                            "samples": samples,
+                            "sun_strength": 0.0,
+                            "world_strength": 1.0,
+                        }
+                    )
     elif kind == "holdout":
         # Albedos between the fit's nodes, another seed: the table's error where it
         # interpolates (the core's tests use these figures).
@@ -225,7 +331,18 @@ def grid(kind: str, samples: int, target: float) -> list[dict]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument(
-        "kind", choices=("fit", "uniform", "holdout", "scale", "sensitivity", "spheres")
+        "kind",
+        choices=(
+            "fit",
+            "uniform",
+            "view",
+            "curvature",
+            "holdout",
+            "anisotropy",
+            "scale",
+            "sensitivity",
+            "spheres",
+        ),
     )
     ap.add_argument("--samples", type=int, default=1024)
     ap.add_argument("--target", type=float, default=4.0, help="expected Burley d, pixels")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -103,7 +104,8 @@ def column_profile(path: Path) -> dict:
 
     Returns
     -------
-    dict with ``x`` (W,) pixel centres (scene units, edge at 0, lit side x > 0),
+    dict with ``x`` (W,) pixel centres and ``width`` their width on the slab
+    (scene units, edge at 0, lit side x > 0),
     ``y`` (W, 3) column means of Combined RGB, ``sem`` (W, 3) their standard
     errors over the rows, ``albedo_pass`` (3,) mean Diffuse Color (the closure
     weight Cycles gives the subsurface: Base Color times the specular layer's
@@ -113,8 +115,11 @@ def column_profile(path: Path) -> dict:
     passes = read_exr(path)
     img = passes["Combined"][..., :3].astype(np.float64)
     h, w = img.shape[:2]
-    x = (np.arange(w) - w / 2 + 0.5) * case["pixel"]
+    # A camera tilted about y by the view angle stretches a pixel across the edge.
+    width = case["pixel"] / math.cos(math.radians(case.get("view_angle", 0.0)))
+    x = (np.arange(w) - w / 2 + 0.5) * width
     return {
+        "width": width,
         "x": x,
         "y": img.mean(axis=0),
         "sem": img.std(axis=0, ddof=1) / np.sqrt(h),

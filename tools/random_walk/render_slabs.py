@@ -23,7 +23,10 @@ Geometries
 ``sphere``
     A sphere of ``sphere_radius`` at the origin, seen by an orthographic
     camera from −y, lit by a sun from +x (the terminator runs down the
-    image centre) or from ``sun_dir``: where curvature changes the profile.
+    image centre) or from ``sun_dir``: where curvature changes the profile. In a
+    uniform white world (``world_strength`` 1, ``sun_strength`` 0) every point
+    is lit alike: Diffuse Direct + Indirect (Blender divides them by Diffuse
+    Color) is then the reflectance over the albedo pass at each view angle.
 
 Per channel the material's Base Color is ``albedo`` and its Subsurface Radius
 ``radius`` (with Subsurface Scale ``scale``): the three channels are three
@@ -67,8 +70,10 @@ DEFAULTS = {
     "slab_depth": 4.0,
     "sphere_radius": 0.05,
     "sun_dir": None,  # direction *to* the sun; default: +z (slab), +x (sphere)
-    "sun_strength": math.pi,  # irradiance on a surface facing the sun, W/m²
+    "sun_strength": math.pi,  # irradiance on a surface facing the sun, W/m² (0: no sun)
+    "world_strength": 0.0,  # radiance of a uniform white world (1: Lambertian radiance = A)
     "occluder": True,  # slab: shade x < 0 (False: the whole slab is lit)
+    "view_angle": 0.0,  # slab: camera tilted this many degrees from the normal (about y)
 }
 
 
@@ -132,7 +137,9 @@ def build(case: dict) -> bpy.types.Scene:
     scene = _reset()
     scene.world = bpy.data.worlds.new("black")
     scene.world.use_nodes = True
-    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    background = scene.world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)  # a new world's is grey
+    background.inputs["Strength"].default_value = case["world_strength"]
     mat = _material(case)
     w, h, px = case["width"], case["height"], case["pixel"]
 
@@ -147,7 +154,9 @@ def build(case: dict) -> bpy.types.Scene:
             occ = bpy.context.object
             occ.scale = (2 * s, 4 * s, 1)
             _only_shadows(occ)
-        cam_loc, cam_dir = (0.0, 0.0, 5.0), (0.0, 0.0, -1.0)
+        t = math.radians(case["view_angle"])
+        cam_loc = (5.0 * math.sin(t), 0.0, 5.0 * math.cos(t))
+        cam_dir = (-math.sin(t), 0.0, -math.cos(t))
     else:
         bpy.ops.mesh.primitive_uv_sphere_add(
             radius=case["sphere_radius"], segments=256, ring_count=128
@@ -164,16 +173,21 @@ def build(case: dict) -> bpy.types.Scene:
     cam = bpy.data.objects.new("cam", cam_data)
     scene.collection.objects.link(cam)
     cam.location = cam_loc
-    _look_at(cam, cam_dir)
+    if case["geometry"] == "slab":
+        # Tilted about y only: image x stays across the edge (x on the slab), y along it.
+        cam.rotation_euler = (0.0, math.radians(case["view_angle"]), 0.0)
+    else:
+        _look_at(cam, cam_dir)
     scene.camera = cam
 
-    sun_data = bpy.data.lights.new("sun", "SUN")
-    sun_data.energy = case["sun_strength"]
-    sun_data.angle = 0.0
-    sun = bpy.data.objects.new("sun", sun_data)
-    scene.collection.objects.link(sun)
-    _look_at(sun, [-v for v in case["sun_dir"]])
-    sun.visible_glossy = False  # no specular highlight: Combined is the subsurface light
+    if case["sun_strength"] > 0:
+        sun_data = bpy.data.lights.new("sun", "SUN")
+        sun_data.energy = case["sun_strength"]
+        sun_data.angle = 0.0
+        sun = bpy.data.objects.new("sun", sun_data)
+        scene.collection.objects.link(sun)
+        _look_at(sun, [-v for v in case["sun_dir"]])
+        sun.visible_glossy = False  # no specular highlight: Combined is the subsurface light
 
     r = scene.render
     r.engine = "CYCLES"
