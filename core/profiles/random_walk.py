@@ -346,8 +346,16 @@ def _bilinear(albedo: np.ndarray, x: np.ndarray, nodes_x, nodes_a, table) -> np.
     return out
 
 
+#: Largest ℓ·H :func:`curvature_factor` uses by default (a sphere of 20 mean free paths).
+MAX_ELL_CURVATURE = 0.05
+
+
 def curvature_factor(
-    albedo, ell_curvature, method: str = "RANDOM_WALK", path: str | Path = FIT_PATH
+    albedo,
+    ell_curvature,
+    method: str = "RANDOM_WALK",
+    max_ell_curvature: float = MAX_ELL_CURVATURE,
+    path: str | Path = FIT_PATH,
 ) -> np.ndarray:
     """How a convex surface raises the walk's reflectance, relative to a flat one.
 
@@ -358,8 +366,14 @@ def curvature_factor(
     this per pixel and channel. Tabulated over ``x = ℓ_c·H`` (ℓ_c the channel's
     mean free path, :func:`mean_free_path`; H the mean curvature, 1/R for a
     sphere, e.g. :func:`mean_curvature`) and the albedo, averaged over the view
-    angles of the sphere; bilinear, held at the table's largest x; concave
-    surfaces (x < 0) count as flat.
+    angles of the sphere; bilinear; concave surfaces (x < 0) count as flat.
+
+    x is capped at ``max_ell_curvature``: the table (measured to x = 1/3)
+    holds, for small spheres, light that crossed the whole sphere from its lit
+    far side, which a scene lit from one side does not send; and a
+    depth-buffer curvature has outliers at facets and silhouettes. The
+    default 0.05 was chosen on the two scenes of tools/random_walk/real_case.py
+    (so it is tuned, not measured); ``np.inf`` uses the whole table.
 
     Parameters
     ----------
@@ -373,7 +387,8 @@ def curvature_factor(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    x = np.maximum(np.nan_to_num(np.asarray(ell_curvature, dtype=np.float64)), 0.0)
+    x = np.nan_to_num(np.asarray(ell_curvature, dtype=np.float64))
+    x = np.clip(x, 0.0, max_ell_curvature)
     if method == "BURLEY":
         return np.ones(x.shape if x.shape[-1:] == (3,) else (*x.shape, 3))
     a = np.clip(_triple("albedo", albedo), 0.0, 1.0)

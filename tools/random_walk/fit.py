@@ -13,9 +13,10 @@ Reads the renders of render_slabs.py (cases from cases.py) in one folder:
     subsurface albedo (Diffuse Color pass), the energy factor ``e``; seen along
     the normal, and from other view angles (the walk's entry refracts the view
     ray, so e depends on the view angle; Burley's does not);
-``curv_*``
-    spheres of radius R = k·ℓ in a uniform white world: their reflectance over
-    the flat model's, against ``ℓ/R`` (the curvature factor);
+``curv_*``, ``front_*``
+    spheres of radius R = k·ℓ in a uniform white world (the curvature
+    factor's table) and lit from behind the camera (a check): their
+    reflectance over the flat model's, against ``ℓ/R``;
 ``scale_*``, ``sens_*``, ``holdout_*`` and ``fit_burley_*``
     checks: f at 2 and 8 pixels per d, f and e under other IOR, Roughness,
     Subsurface IOR and Anisotropy, between the nodes (albedo and anisotropy),
@@ -50,8 +51,13 @@ Errors stated (all per channel)
 ``scale``
     f measured at other d (pixels per d) against the table.
 ``curvature_by_view``
-    the curvature factor of each sphere over four bands of the view cosine
-    (the model uses their mean).
+    the curvature factor of each sphere over bands of the view cosine (the
+    model uses their mean), front-lit and uniformly lit.
+``curvature_front_light``
+    the same ratio for spheres lit from behind the camera: it also holds the
+    light the profile spreads from the bright centre to the dim limb and the
+    unseen back, so it is lower than the uniform one where ℓ/R and the albedo
+    are large.
 ``oblique_view_edge``
     f of shadow edges seen 60 degrees off the normal (the edge runs across
     the tilt) against the normal-view table: the model keeps the normal
@@ -65,6 +71,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -209,16 +216,19 @@ def _view_energy(folder: Path, method: str) -> dict:
     }
 
 
-def _curvature(folder: Path, method: str, base: Path) -> tuple[dict, list]:
-    """The reflectance of uniformly lit spheres over the flat model's, against ℓ/R.
+def _curvature(folder: Path, method: str, base: Path, prefix: str) -> tuple[dict, list]:
+    """The reflectance of spheres over the flat model's, against ℓ/R.
 
-    ``base`` holds the flat tables (energy, view factor) already fitted: each
-    sphere pixel's reflectance is divided by the flat model at its albedo and
-    view angle, and averaged over the disc out to 75 degrees.
+    ``prefix`` "curv": spheres in a uniform white world, averaged over the disc
+    out to 75 degrees; "front": lit by a sun behind the camera (irradiance
+    cos θ), averaged out to 60 degrees. ``base`` holds the flat tables (energy,
+    view factor) already fitted: each sphere pixel's reflectance is divided by
+    the flat model at its albedo and view angle.
     """
     rows: dict = {}
     spread = []
-    for path in sorted(folder.glob("curv_*.exr")):
+    front = prefix == "front"
+    for path in sorted(folder.glob(f"{prefix}_*.exr")):
         case = json.loads(path.with_suffix(".json").read_text())
         if case["method"] != method:
             continue
@@ -229,22 +239,26 @@ def _curvature(folder: Path, method: str, base: Path) -> tuple[dict, list]:
         rho = np.hypot(xx - w / 2 + 0.5, yy - h / 2 + 0.5) * case["pixel"]
         rho /= case["sphere_radius"]
         mu = np.sqrt(np.clip(1 - rho**2, 0, 1))
-        disc = mu >= math.cos(math.radians(75))
+        disc = mu >= math.cos(math.radians(60 if front else 75))
         ell = _ell(case)
         _, flat_e = shape(case["radius"], case["scale"], case["albedo"], method, path=base)
         flat = flat_e * view_factor(case["albedo"], mu[disc], method, path=base)
+        if front:  # a Lambertian surface would show cos θ
+            flat *= mu[disc][:, None]
         ratio = e[disc] / flat
         for ch in range(3):
             x = round(float(ell[ch] / case["sphere_radius"]), 4)
             rows.setdefault(x, {})[case["albedo"][ch]] = float(ratio[:, ch].mean())
             # How much the factor varies across the disc (the model averages it).
+            bands = ((0.26, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.01))
             bins = [
                 ratio[(mu[disc] >= lo) & (mu[disc] < hi), ch].mean()
-                for lo, hi in ((0.26, 0.5), (0.5, 0.7), (0.7, 0.9), (0.9, 1.01))
+                for lo, hi in bands[1 if front else 0 :]
             ]
             spread.append(
                 {
                     "method": method,
+                    "lighting": "uniform" if prefix == "curv" else "front",
                     "albedo": case["albedo"][ch],
                     "ell_curvature": x,
                     "factor": round(float(ratio[:, ch].mean()), 4),
@@ -293,15 +307,24 @@ def build(folder: Path) -> dict:
     cases = {m: groups[(m, 0.0)][0][0]["case"] for m in METHODS}
 
     # The curvature factor divides by the flat model: write that first, then add it.
+    errors_extra: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp) / "flat.json"
         base.write_text(json.dumps({"format": FIT_FORMAT, "methods": methods}))
         curvature_spread = []
         for method in METHODS:
-            table, spread = _curvature(folder, method, base)
-            curvature_spread += spread
+            # The table is the uniformly lit one: with the lighting the same everywhere
+            # the post-process returns it unchanged, so the sphere's ratio to the flat
+            # model is what the energy lacks. Lit from behind the camera the ratio also
+            # holds the light the profile carries into the dim limb and the unseen
+            # back (the post's own business): kept as a check.
+            table, spread = _curvature(folder, method, base, "curv")
+            front, spread_f = _curvature(folder, method, base, "front")
+            curvature_spread += spread + spread_f
             if table is not None:
                 methods[method]["curvature"] = table
+            if front is not None:
+                errors_extra.setdefault("curvature_front_light", {})[method] = front
 
     errors: dict = {
         "leave_one_out": {
@@ -377,6 +400,7 @@ def build(folder: Path) -> dict:
             )
     errors["oblique_view_edge"] = oblique
     errors["curvature_by_view"] = curvature_spread
+    errors.update(errors_extra)
 
     sens = []
     base = {}
@@ -420,13 +444,29 @@ def build(folder: Path) -> dict:
     }
 
 
+def _compact(text: str) -> str:
+    """Lists of numbers (and of such lists), and short records, on one line: the file stays
+    small and readable."""
+    number = r"-?[0-9.eE+-]+|null|true|false"
+    flat = re.compile(r"\[\s*((?:" + number + r")(?:,\s*(?:" + number + r"))*)\s*\]")
+    text = flat.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]", text)
+    nested = re.compile(r"\[\s*((?:\[[^\[\]]*\])(?:,\s*\[[^\[\]]*\])*)\s*\]")
+    text = nested.sub(lambda m: "[" + re.sub(r"\],\s*\[", "], [", m.group(1)) + "]", text)
+
+    def one_line(m):
+        line = re.sub(r"\s*\n\s*", " ", m.group(0)).replace("{ ", "{").replace(" }", "}")
+        return line if len(line) <= 160 else m.group(0)
+
+    return re.sub(r"\{[^{}]*\}", one_line, text)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("renders", type=Path)
     ap.add_argument("--out", type=Path, help="write the JSON here (default: stdout)")
     args = ap.parse_args(argv)
     data = build(args.renders)
-    text = json.dumps(data, indent=1) + "\n"
+    text = _compact(json.dumps(data, indent=1)) + "\n"
     if args.out:
         args.out.write_text(text)
     else:

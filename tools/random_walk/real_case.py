@@ -45,7 +45,14 @@ SCALE = 1.0  # Subsurface Scale: d_R = 8 cm, about 4 pixels at the spheres
 SPHERE_RADIUS = 0.42
 
 
-def build_scene(path: Path, method: str, samples: int = 16) -> dict:
+def build_scene(
+    path: Path,
+    method: str,
+    samples: int = 16,
+    scale: float = SCALE,
+    size: tuple[int, int] = (128, 72),
+    lens: float = 50.0,
+) -> dict:
     import bpy
     from mathutils import Vector
 
@@ -65,7 +72,7 @@ def build_scene(path: Path, method: str, samples: int = 16) -> dict:
         node.inputs["Base Color"].default_value = (*color, 1.0)
         node.inputs["Subsurface Weight"].default_value = 1.0
         node.inputs["Subsurface Radius"].default_value = radius
-        node.inputs["Subsurface Scale"].default_value = SCALE
+        node.inputs["Subsurface Scale"].default_value = scale
         bpy.ops.mesh.primitive_uv_sphere_add(
             radius=SPHERE_RADIUS, location=(x, 0, SPHERE_RADIUS), segments=96, ring_count=48
         )
@@ -75,7 +82,7 @@ def build_scene(path: Path, method: str, samples: int = 16) -> dict:
         inputs[name] = {
             "albedo": list(color),
             "radius": list(radius),
-            "scale": SCALE,
+            "scale": scale,
             "method": method,
             "ior": sock["IOR"].default_value,
             "roughness": sock["Roughness"].default_value,
@@ -105,7 +112,8 @@ def build_scene(path: Path, method: str, samples: int = 16) -> dict:
 
     r = scene.render
     r.engine = "CYCLES"
-    r.resolution_x, r.resolution_y, r.resolution_percentage = 128, 72, 100
+    cam.data.lens = lens
+    r.resolution_x, r.resolution_y, r.resolution_percentage = *size, 100
     scene.cycles.device = "CPU"
     scene.cycles.samples = samples
     scene.cycles.use_denoising = False
@@ -223,6 +231,9 @@ def main(argv=None) -> int:
         "--method", default="RANDOM_WALK", choices=("BURLEY", "RANDOM_WALK", "RANDOM_WALK_SKIN")
     )
     s.add_argument("--samples", type=int, default=16, help="samples of the passes")
+    s.add_argument("--scale", type=float, default=SCALE, help="Subsurface Scale")
+    s.add_argument("--size", type=int, nargs=2, default=(128, 72), help="resolution")
+    s.add_argument("--lens", type=float, default=50.0, help="focal length, mm")
     t = sub.add_parser("truth")
     t.add_argument("blend", type=Path)
     t.add_argument("out", type=Path)
@@ -234,7 +245,7 @@ def main(argv=None) -> int:
     c.add_argument("--method", default="reference,as_ccv")
     args = ap.parse_args(argv)
     if args.cmd == "scene":
-        build_scene(args.blend, args.method, args.samples)
+        build_scene(args.blend, args.method, args.samples, args.scale, tuple(args.size), args.lens)
     elif args.cmd == "truth":
         render_truth(args.blend, args.out, args.spp)
     else:
