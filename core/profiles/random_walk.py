@@ -19,23 +19,36 @@ Subsurface Radius ``ρ_c`` and Scale ``s`` but not the profile:
     Subsurface IOR, equals the Base Color (:func:`dipole_alpha_prime`); half the
     paths enter through a Lambertian entry, half by refraction with alpha = 1.
 
-The walk's profile is not Burley's, but in units of ℓ it depends on the
-albedo A (and the anisotropy and view angle) only (the walk is scale invariant; the anisotropy g keeps the reduced
-extinction ``1/ℓ``). The model here is the Burley profile that best fits it:
+In units of ℓ the walk's profile depends on the albedo A, the anisotropy g
+and the view angle only (the walk is scale invariant; g keeps the reduced
+extinction ``1/ℓ``). The model is the Burley profile that best fits it, and
+the energy the walk returns relative to Cycles' subsurface albedo (the Diffuse
+Color pass, which the composite multiplies by):
 
-    d_c = ℓ_c · f_m(A_c),   total reflectance = e_m(A_c) · (Cycles' albedo pass),
+    d_c = ℓ_c · f_m(A_c, g)                                   (:func:`shape`)
+    L_c → e_m(A_c, g) · V_m(A_c, μ) · C_m(A_c, ℓ_c·H) · L_c
 
-with ``f_m`` and ``e_m`` tabulated per method m over the albedo, one table
-per Subsurface Anisotropy node (it changes f by up to 30 %), interpolated
-linearly in both (held at the end values outside the tables), for a view
-along the normal. The energy also depends on the view angle (the walk starts
-along the refracted view ray): :func:`view_factor` scales it per pixel. The tables
-(``core/data/random_walk_fit.json``) are least-squares fits of a Burley edge
-response to the shadow edges of Cycles renders of a semi-infinite slab
-(``tools/random_walk/fit.py``, which also states the fit's error). Christensen
-and Burley's own fit of their profile to a volumetric search light,
-``d = ℓ/s(A)``, is :func:`search_light_scale`; the measured ``f`` is close to
-``1/s`` (see the data's ``errors``).
+per channel c, with L the post's scattered light at a pixel, μ the cosine
+between its view ray and normal (:func:`view_factor`: the walk starts along
+the refracted view ray, so grazing views return more; Burley's reflectance
+does not depend on the view) and H the surface's mean curvature
+(:func:`curvature_factor`, :func:`mean_curvature`: walks leave a convex body
+more easily than a slab). f and e are tabulated over the albedo for
+g ∈ {0, 0.3, 0.6, 0.9}, V over (μ, A) and C over (ℓH, A), all interpolated
+linearly and held at the tables' ends. The tables
+(``core/data/random_walk_fit.json``) come from Cycles renders
+(``tools/random_walk/fit.py``, which states their errors): least-squares fits
+of Burley's edge response to shadow edges on a semi-infinite slab, uniformly
+lit slabs seen from six angles, and uniformly lit spheres of 3–50 mean free
+paths. Christensen and Burley's fit of their profile to a volumetric search
+light, ``d = ℓ/s(A)`` (:func:`search_light_scale`), is within 25 % of the
+measured f for A in [0.1, 0.9].
+
+Not modelled: the oblique view's asymmetric profile (at 60 degrees the best
+symmetric d differs by up to 17 % and the edge response by up to 23 % of its
+level), the Principled IOR and Roughness (RANDOM_WALK's entry; ≤ 1.2 % in f,
+≤ 3 % in e between 1.33 and 2.0, 0 and 1) and the Subsurface IOR beyond its
+part in Skin's ℓ (≤ 0.3 % in f, ≤ 0.7 % in e).
 
 All lengths in scene units; albedos linear in [0, 1].
 """

@@ -89,9 +89,9 @@ def case(name, method, albedo, target, samples, **extra) -> dict:
 
 
 def sphere_cases(samples: int, albedo=(0.2, 0.5, 0.8), d_px: float = 3.0) -> list[dict]:
-    """Spheres of 2, 5 and 20 times the widest channel's expected d, lit from the side,
-    in each random-walk method and as Cycles' Burley with the plain d (radius as given)
-    and with the fitted model (radius scaled to the model's d, Base Color to A·e)."""
+    """Spheres of 5, 10 and 20 times the largest mean free path, lit from the side, in
+    each random-walk method and as Cycles' Burley with the plain d (radius as given) and
+    with the fitted model (radius scaled to the model's d, Base Color to A·e)."""
     from cvsss.core.profiles.random_walk import shape
 
     out = []
@@ -99,12 +99,13 @@ def sphere_cases(samples: int, albedo=(0.2, 0.5, 0.8), d_px: float = 3.0) -> lis
     for method in ("RANDOM_WALK", "RANDOM_WALK_SKIN"):
         radius = radius_for(albedo, method, d_px)
         d, e = shape(radius, SCALE, albedo, method)
-        for k in (2, 5, 20):
-            size = 64
-            sphere = k * float(max(d))
+        ell = mean_free_path(radius, SCALE, albedo, method)
+        for k in (5, 10, 20):
+            size = 128
+            sphere = k * float(max(ell))
             pixel = 2.4 * sphere / size
-            # 64 pixels across 2.4 sphere radii: the truth and both Burley renders see
-            # the same grid, so its resolution of d does not matter here.
+            # 128 pixels across 2.4 sphere radii: the truth and both Burley renders see
+            # the same grid, so its resolution of d matters little here.
             common = {
                 "geometry": "sphere",
                 "albedo": list(albedo),
@@ -132,7 +133,7 @@ def sphere_cases(samples: int, albedo=(0.2, 0.5, 0.8), d_px: float = 3.0) -> lis
             out.append(
                 {"name": f"sphere_{tag}_plain", "method": "BURLEY", "radius": radius, **common}
             )
-            if k == 5:  # the truth's own noise: the same render with another seed
+            if k == 10:  # the truth's own noise: the same render with another seed
                 out.append(
                     {
                         "name": f"sphere_{tag}_seed1",
@@ -230,31 +231,38 @@ def grid(kind: str, samples: int, target: float) -> list[dict]:
                     }
                 )
     elif kind == "curvature":
-        # Spheres of radius R = k·ℓ in a uniform white world: the energy against the
-        # view angle (across the image) and the curvature ℓ/R.
+        # Spheres of radius R = k·ℓ in a uniform white world (and lit from behind the
+        # camera): the energy against the view angle (across the image) and ℓ/R.
         for method in ("RANDOM_WALK", "RANDOM_WALK_SKIN"):
             for i, alb in enumerate(CURVATURE_ALBEDOS):
                 ell_per_radius = mean_free_path([1, 1, 1], SCALE, alb, method)
                 for k in CURVATURE_RADII:
                     sphere = 0.05
                     radius = (sphere / k / ell_per_radius).round(6).tolist()
-                    out.append(
-                        {
-                            "name": f"curv_{short[method]}_{i}_k{k:g}",
-                            "geometry": "sphere",
-                            "method": method,
-                            "albedo": list(alb),
-                            "radius": radius,
-                            "scale": SCALE,
-                            "sphere_radius": sphere,
-                            "pixel": 2.2 * sphere / 64,
-                            "width": 64,
-                            "height": 64,
-                            "samples": samples,
-                            "sun_strength": 0.0,
-                            "world_strength": 1.0,
-                        }
-                    )
+                    c = {
+                        "name": f"curv_{short[method]}_{i}_k{k:g}",
+                        "geometry": "sphere",
+                        "method": method,
+                        "albedo": list(alb),
+                        "radius": radius,
+                        "scale": SCALE,
+                        "sphere_radius": sphere,
+                        "pixel": 2.2 * sphere / 64,
+                        "width": 64,
+                        "height": 64,
+                        "samples": samples,
+                        "sun_strength": 0.0,
+                        "world_strength": 1.0,
+                    }
+                    # The same sphere lit by a sun behind the camera (fit.py's check).
+                    front = {
+                        **c,
+                        "name": c["name"].replace("curv_", "front_"),
+                        "sun_strength": math.pi,
+                        "world_strength": 0.0,
+                        "sun_dir": [0.0, -1.0, 0.0],
+                    }
+                    out += [c, front]
     elif kind == "holdout":
         # Albedos between the fit's nodes, another seed: the table's error where it
         # interpolates (the core's tests use these figures).

@@ -26,10 +26,15 @@ Reads the renders of render_slabs.py (cases from cases.py) in one folder:
 and writes the tables with the errors of the fit. The shipped data file was
 made with::
 
-    python tools/random_walk/cases.py fit > fit.jsonl    # and uniform, holdout, scale and
-    # sensitivity (--samples 256 for the last two), anisotropy --samples 256
-    nice -n 10 python tools/random_walk/render_slabs.py fit.jsonl renders   # each file
+    C=tools/random_walk/cases.py
+    { python $C fit; python $C uniform; python $C holdout; python $C view
+      python $C scale --samples 256; python $C sensitivity --samples 256
+      python $C anisotropy --samples 256; python $C curvature --samples 512
+    } > cases.jsonl
+    nice -n 10 python tools/random_walk/render_slabs.py cases.jsonl renders   # hours on 2 cores
     python tools/random_walk/fit.py renders --out core/data/random_walk_fit.json
+
+(with the project importable as ``cvsss``; Blender 5.0.1's bpy module).
 
 Errors stated (all per channel)
 -------------------------------
