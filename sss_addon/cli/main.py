@@ -394,10 +394,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     truth.add_argument(
         "--ground-truth-method",
-        choices=("burley", "random_walk"),
+        choices=("material", "burley", "random_walk"),
         default=None,
-        help="Cycles' subsurface method of the ground truth: burley (Christensen-Burley, the "
-        "profile the post samples) or random_walk (default: the scene's cvsss setting, burley)",
+        help="Cycles' subsurface method of the ground truth: material (each material's own "
+        "Subsurface Method: Christensen-Burley, Random Walk or Random Walk (Skin), which the "
+        "post models per material), or burley or random_walk forced on every material "
+        "(default: the scene's cvsss setting, material)",
     )
     scripts = rnd.add_argument_group(
         "Python in the .blend (drivers with Python expressions, registered text blocks)",

@@ -94,7 +94,8 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
         if gt.ground_truth_done(folder, f, plan.samples, "BURLEY"):
             continue
         t0 = time.perf_counter()
-        gt.render_ground_truth(scene, f, folder, mats, view_layer, plan.samples)
+        # The demo's materials are Christensen-Burley: forced, its records stay valid.
+        gt.render_ground_truth(scene, f, folder, mats, view_layer, plan.samples, "BURLEY")
         timing.setdefault("ground_truth", {})[str(f)] = time.perf_counter() - t0
         write_timing(scene_dir, timing)
         if log:
@@ -118,7 +119,9 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
                 if path.is_file() and record.is_file() and str(f) in timing.get(name, {}):
                     continue
                 t0 = time.perf_counter()
-                gt.render_ground_truth(scene, f, path.parent, mats, view_layer, spp, denoise=oidn)
+                gt.render_ground_truth(
+                    scene, f, path.parent, mats, view_layer, spp, "BURLEY", denoise=oidn
+                )
                 timing.setdefault(name, {})[str(f)] = time.perf_counter() - t0
                 write_timing(scene_dir, timing)
     if log:
