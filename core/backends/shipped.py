@@ -212,7 +212,7 @@ def build(root: Path, out: Path, cpu: str) -> dict:
     shipped build to ``out``/``cpu``; its manifest.
 
     The compile runs in a process of its own (numba reads its CPU settings when it
-    is imported): ``sss_addon/compile_kernels.py``, which imports the add-on as
+    is imported): ``sss_addon/compile_passes.py``, which imports the add-on as
     :data:`BUILD_PACKAGE`, with an empty cache and the shipped passes off.
     """
     import subprocess
@@ -227,7 +227,7 @@ def build(root: Path, out: Path, cpu: str) -> dict:
             NUMBA_CPU_FEATURES="",  # the model's own features, none of this machine's
             CVSSS_SHIPPED_PASSES="0",
         )
-        script = root / "sss_addon" / "compile_kernels.py"
+        script = root / "sss_addon" / "compile_passes.py"
         run = subprocess.run(
             [sys.executable, str(script), str(root), BUILD_PACKAGE],
             env=env,
