@@ -89,6 +89,11 @@ TWINS: dict[str, Twin] = {
             "mean and deviation over each pixel's 3×3 same-material neighbours",
         ),
         Twin("reuse_step", "mc.temporal", "the temporal reuse's per-pixel arithmetic"),
+        Twin(
+            "reuse",
+            "mc.temporal",
+            "the temporal reuse step: the history's reads, the arithmetic and the stores",
+        ),
         Twin("separable_pass", "separable.apply", "one 1D pass of the separable filter"),
         Twin("composite", "result", "the finished frame and the lighting image"),
     )

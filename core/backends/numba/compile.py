@@ -15,7 +15,15 @@ from .region import _region
 from .sampling import PLANAR, build_for, pixel_sums, pixel_sums_serial, relight, tile_order
 from .separable import separable_pass_exp, separable_pass_slope
 from .surface import surface_arrays
-from .temporal import MULTIPLICATIVE, neighbour_table, neighbourhood_pass, reuse_finish, reuse_start
+from .temporal import (
+    MULTIPLICATIVE,
+    neighbour_table,
+    neighbourhood_pass,
+    reuse_finish,
+    reuse_finish_history,
+    reuse_start,
+    reuse_start_history,
+)
 
 
 def compile_all(pixels: int | None = None) -> None:
@@ -75,6 +83,12 @@ def compile_all(pixels: int | None = None) -> None:
                 *rgb[5:7], one.copy())  # fmt: skip
     reuse_finish(*rgb[:4], one, yes, *rgb[4:6], 2.0, one, 1e-12, MULTIPLICATIVE, True, 2.0, 0.1,
                  *rgb[6:8], one.copy())  # fmt: skip
+    # The same on a float32 history's buffers (core.mc.temporal._reuse_compiled).
+    bufs = tuple(one32.copy() for _ in range(3))
+    reuse_start_history(*rgb[:2], one, rgb[2], yes, at, one32.copy(), bufs, bufs, np.ones(3),
+                        MULTIPLICATIVE, 0.2, 0.3, one, table, *rgb[3:5], one.copy(), one.copy())  # fmt: skip
+    reuse_finish_history(*rgb[:3], one, yes, at, bufs, one32.copy(), table, 2.0, one, 1e-12,
+                         MULTIPLICATIVE, 2.0, 0.1, rgb[5], one.copy())  # fmt: skip
 
 
 def _compile_sampling(fn) -> None:

@@ -23,7 +23,7 @@ import numpy as np
 
 from cvsss.core.camera import Camera
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc.history import H_FIELDS, J_FIELDS, History
+from cvsss.core.mc.history import H_FIELDS, J_FIELDS, T_FIELDS, History
 from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.profiles.burley import BurleyProfile
 from cvsss.core.profiles.factory import frame_profile
@@ -520,6 +520,83 @@ def reuse_step_cases() -> list[Case]:
     ]
 
 
+def reuse_cases() -> list[Case]:
+    """The whole reuse step on a float32 history: what the NumPy side reads, computes and
+    stores against the compiled passes that read and store the buffers themselves."""
+    frame = surface_frames()["perspective"]
+    geom = geometry_of(frame, frame_profile(frame, SSSParams()))
+
+    def make(mode, clamp, noisy):
+        def build(backend):
+            rng = np.random.default_rng(2)
+            p = geom.size
+            hist = History.empty(geom.shape, temporal=True, cv=False)
+            idx = geom.index
+            for name in T_FIELDS:
+                hist.buffers[name].reshape(-1)[idx] = rng.lognormal(0, 1, p)
+            hist.buffers["acc_n"].reshape(-1)[idx] = rng.integers(0, 30, p)
+            hist.buffers["prox_g"].reshape(-1)[idx[::17]] = -1.0  # a negative proxy
+            hist.buffers["acc_b"].reshape(-1)[idx[::19]] = np.nan  # stays NaN: stored as 0
+            distant, control = rng.lognormal(0, 1, (2, p, 3))
+            proxy = rng.normal(1, 1, (p, 3))
+            distant[::37, 1] = np.nan
+            control[::41, 0] = 0.0  # a black control
+            control[::47, 2] = 1e300  # stored as float32's largest
+            proxy[::43, 2] = np.inf
+            noise = rng.lognormal(-1, 1, p)
+            noise[::29] = np.nan
+            noise[::31] = np.inf
+            args = (
+                hist, geom, distant, control, rng.random(p),
+                proxy if mode == "multiplicative" else None, rng.random(p) < 0.85,
+                1e-3 * np.ones(3),
+            )  # fmt: skip
+            kwargs = dict(
+                mode=mode, min_weight=0.1, clamp=clamp, tolerance=0.3,
+                noise=noise if noisy else None, floor=1e-12, backend=backend,
+            )  # fmt: skip
+            return args, kwargs
+
+        def check(a, b, args_a, args_b):
+            # libm's log and exp against NumPy's (the reuse_step twin's check): a few
+            # ulps of each value, or of the largest where a difference cancels; NaN and
+            # ±inf in the same places.
+            for x, y in zip(a, b):
+                assert np.array_equal(np.isnan(x), np.isnan(y))
+                assert np.array_equal(np.isinf(x), np.isinf(y))
+                ok = np.isfinite(x)
+                scale = float(np.abs(x[ok]).max(initial=0.0))
+                np.testing.assert_allclose(y[ok], x[ok], rtol=1e-13, atol=1e-13 * scale)
+            assert (a[1] > 1).any() and (a[1] == 0).any()
+            # The stores: this frame's control and proxy bit for bit; the accumulation
+            # and the count, from values within those ulps, within a float32 rounding.
+            ha, hb = args_a[0][0], args_b[0][0]
+            for name in T_FIELDS:
+                x, y = ha.buffers[name], hb.buffers[name]
+                assert x.dtype == y.dtype == np.float32
+                if name.startswith(("ctl", "prox")):
+                    same_bits(x, y, name)
+                else:
+                    np.testing.assert_allclose(y, x, rtol=2**-23, atol=0, err_msg=name)
+            fresh = build("numpy")[0][0]  # the history before the step
+            stored = {"acc_r": True, "acc_n": True, "ctl_g": mode != "plain"}
+            stored["prox_b"] = mode == "multiplicative"
+            for name, changed in stored.items():
+                after = hb.buffers[name].reshape(-1)[geom.index]
+                same = np.array_equal(after, fresh.buffers[name].reshape(-1)[geom.index])
+                assert same != changed, name
+
+        return Case(f"{mode}-{'clamp' if np.isfinite(clamp) else 'no-clamp'}-"
+                    f"{'noise' if noisy else 'no-noise'}", build, check)  # fmt: skip
+
+    return [
+        make(mode, clamp, noisy)
+        for mode in ("plain", "subtractive", "multiplicative")
+        for clamp in (2.0, np.inf)
+        for noisy in (True, False)
+    ]
+
+
 # -- the separable passes and the composite --------------------------------------------------
 def separable_pass_cases() -> list[Case]:
     def make(case, name, options):
@@ -609,6 +686,7 @@ CASES: dict[str, Callable[[], list[Case]]] = {
     "reproject": reproject_cases,
     "neighbourhood": neighbourhood_cases,
     "reuse_step": reuse_step_cases,
+    "reuse": reuse_cases,
     "separable_pass": separable_pass_cases,
     "composite": composite_cases,
 }
