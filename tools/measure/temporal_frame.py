@@ -4,8 +4,9 @@ Runs the bench's flash sequence (``core.synthetic``: a still scene whose light
 flashes) at WxH through each method on one backend, ``--warmup`` frames first, then
 ``--runs`` more frames interleaved (one frame of every method per round, so a slow
 spell of a shared machine hits them alike) and prints, per method, the median and the
-min–max of the whole ``process()`` call (wall seconds and process CPU seconds), and the
-median milliseconds of each step inside it. The steps are the functions the
+min–max of the whole ``process()`` call (wall seconds and process CPU seconds: all
+threads', which a busy machine inflates less than wall time), and the median
+milliseconds of each step inside it, wall and CPU. The steps are the functions the
 processor calls, wrapped with timers for the run; a step's time includes the steps
 indented under it, ``rest`` is the call's time outside the named steps. Run from the
 repo root:
@@ -66,23 +67,25 @@ STEPS = tuple(s for s in STEPS if hasattr(s[0], s[1]))
 
 
 class Timers:
-    """Inclusive seconds per path of nested step labels, for the current frame."""
+    """Inclusive (wall, process CPU) seconds per path of nested step labels, for the
+    current frame."""
 
     def __init__(self) -> None:
         self.stack: list[str] = []
-        self.seconds: dict[tuple[str, ...], float] = defaultdict(float)
+        self.seconds: dict[tuple[str, ...], np.ndarray] = {}
 
     def wrap(self, fn, label: str):
         @functools.wraps(fn)
         def timed(*args, **kwargs):
             self.stack.append(label)
             path = tuple(self.stack)
-            self.seconds.setdefault(path, 0.0)  # listed in the order steps begin
-            t0 = time.perf_counter()
+            # Listed in the order the steps begin.
+            self.seconds.setdefault(path, np.zeros(2))
+            t0, c0 = time.perf_counter(), time.process_time()
             try:
                 return fn(*args, **kwargs)
             finally:
-                self.seconds[path] += time.perf_counter() - t0
+                self.seconds[path] += (time.perf_counter() - t0, time.process_time() - c0)
                 self.stack.pop()
 
         return timed
@@ -140,19 +143,22 @@ def main() -> None:
                 wall[m].append(time.perf_counter() - t0)
                 cpu[m].append(time.process_time() - c0)
             for path in [*timers.seconds, *(p for p in steps[m] if p not in timers.seconds)]:
-                steps[m][path].append(timers.seconds.get(path, 0.0))
+                steps[m][path].append(timers.seconds.get(path, np.zeros(2)))
     print(f"{cvsss.__file__}: {w}x{h}, {a.backend}, {a.runs} interleaved runs after "
           f"{a.warmup} frames")  # fmt: skip
     for m in a.methods:
         print(f"\n{m}: wall s {spread(wall[m])}   cpu s {spread(cpu[m])}   (median (min–max))")
-        rows = steps[m]
+        rows = {path: np.asarray(v) * 1e3 for path, v in steps[m].items()}
         top = [p for p in rows if len(p) == 2]
+        print(f"  {'step (median ms)':<22} {'wall':>8} {'cpu':>8}")
         for path in rows:
             if len(path) < 2:
                 continue
-            print(f"  {'  ' * (len(path) - 2)}{path[-1]:<16} {np.median(rows[path]) * 1e3:9.1f} ms")
-        rest = np.asarray(rows[("frame",)]) - sum(np.asarray(rows[p]) for p in top)
-        print(f"  {'rest':<16} {np.median(rest) * 1e3:9.1f} ms")
+            wall_ms, cpu_ms = np.median(rows[path], axis=0)
+            print(f"  {'  ' * (len(path) - 2) + path[-1]:<22} {wall_ms:8.1f} {cpu_ms:8.1f}")
+        rest = rows[("frame",)] - sum(rows[p] for p in top)
+        wall_ms, cpu_ms = np.median(rest, axis=0)
+        print(f"  {'rest':<22} {wall_ms:8.1f} {cpu_ms:8.1f}")
 
 
 if __name__ == "__main__":
