@@ -9,7 +9,7 @@ import numpy as np
 
 from ...sampling.qmc import DIRECTIONS
 from .adaptive import _counts_pass, _update_pass
-from .history import _history_pass, fetch, read_column, reproject_map, write_column
+from .history import _history_pass, read_column, reproject, write_column
 from .image import _composite_pass, _float_image_pass
 from .region import _region
 from .sampling import PLANAR, build_for, pixel_sums, pixel_sums_serial, relight, tile_order
@@ -57,11 +57,12 @@ def compile_all(pixels: int | None = None) -> None:
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
     _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
-    plane = np.ones((1, 1), np.float32)
-    for motion in (None, np.zeros((1, 1, 2), np.float32)):
-        reproject_map(motion, plane, at.reshape(1, 1), plane, at.reshape(1, 1), 0.1)
-    for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
-        fetch(np.zeros(1, dtype), at, yes)
+    plane, mask = np.ones((1, 1), np.float32), np.ones((1, 1), np.bool_)
+    for dtype in (np.float16, np.float32):  # the history's storage
+        for slots in (np.int32, np.int64):  # a Frame's slots, or wider ones
+            key = np.zeros((1, 1), slots)
+            block = np.zeros((2, 1, 1), dtype)
+            reproject(None, plane, key, plane, key, 0.1, block, np.ones(2, bool), mask, mask)
     read_column(one32, at, 1.0, g3, 0)
     write_column(g3, 0, at, 1.0, one32.copy())
     # The separable passes (the separable method, the temporal proxy) and the temporal

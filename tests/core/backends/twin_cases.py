@@ -402,7 +402,7 @@ def history_read_cases() -> list[Case]:
 
 
 def reproject_cases() -> list[Case]:
-    def make(precision, moving):
+    def make(precision, moving, separate=False):
         def build(backend):
             rng = np.random.default_rng(11)
             shape = (23, 37)
@@ -414,6 +414,8 @@ def reproject_cases() -> list[Case]:
             hist.material[...] = rng.integers(0, 3, shape)
             hist.depth[...] = rng.uniform(1, 2, shape)
             hist.depth[0] = np.inf
+            if separate:  # buffers of their own, not the rows of one array (History.empty's)
+                hist.buffers = {k: v.copy() for k, v in hist.buffers.items()}
             depth = (hist.depth * rng.choice([1.0, 1.05, 1.2], shape)).astype(np.float32)
             depth[:, 0] = np.inf
             material = np.where(rng.random(shape) < 0.9, hist.material, 2).astype(np.int32)
@@ -435,9 +437,11 @@ def reproject_cases() -> list[Case]:
             # reset where the surface is not the same
             assert (a.buffers["acc_n"] == 0).sum() > (a.buffers["mu"] == 0).sum()
 
-        return Case(f"{precision}-{'moving' if moving else 'still'}", build, check)
+        label = f"{precision}-{'moving' if moving else 'still'}{'-separate' if separate else ''}"
+        return Case(label, build, check)
 
-    return [make(p, m) for p in ("float16", "float32") for m in (True, False)]
+    cases = [make(p, m) for p in ("float16", "float32") for m in (True, False)]
+    return [*cases, make("float32", True, separate=True)]
 
 
 # -- the temporal reuse --------------------------------------------------------------------
