@@ -91,6 +91,55 @@ class _Pixels:
     origin: tuple[int, int]  # (y, x) image coordinates of the frame's pixel (0, 0)
     image: tuple[int, int]  # (H, W) of the whole image
     core: np.ndarray | None  # (P,) bool, pixels whose reads are counted (None: all)
+    #: The compiled vertical pass's layout (:func:`_columns`), made on its first use.
+    columns: _Columns | None = None
+
+
+@dataclass
+class _Columns:
+    """The compiled vertical pass's layout: the image arrays transposed (column-major)
+    and the SSS pixels sorted by slot, then column, then row, so that a block of pixels
+    and its reads run down contiguous memory, as the horizontal pass's run along rows."""
+
+    px: _Pixels  # the pixels in that order; index: flat into the transposed arrays
+    at: np.ndarray  # (P,) int64, position in px of each pixel of the row-order _Pixels
+    index: np.ndarray  # (P,) int64, flat index into the transposed arrays, row order
+    depth: np.ndarray  # (W·H,) float32, the depth transposed
+    slots: np.ndarray  # (W·H,) int32, the slots transposed
+
+
+def _columns(px: _Pixels, shape: tuple[int, int], depth_flat, slots) -> _Columns:
+    """:class:`_Columns` of the row-order pixels ``px`` of a frame of ``shape`` (H, W),
+    with its (H·W,) depth and slots."""
+    h, w = shape
+    oy, ox = px.origin
+    index = (px.x - ox) * h + (px.y - oy)
+    perm = np.lexsort((px.y, px.x, px.mat))  # stable: the slots' runs stay in place
+    at = np.empty(perm.size, np.int64)
+    at[perm] = np.arange(perm.size)
+    cols = _Pixels(
+        px.order[perm],
+        px.runs,
+        px.lengths,
+        px.slots,
+        index[perm],
+        px.x[perm],
+        px.y[perm],
+        px.mat[perm],
+        px.z[perm],
+        px.inv_fw[perm],
+        px.inv_fh[perm],
+        px.origin,
+        px.image,
+        None if px.core is None else px.core[perm],
+    )
+
+    def transposed(a, dtype):
+        return np.ascontiguousarray(np.asarray(a, dtype).reshape(h, w).T).reshape(-1)
+
+    return _Columns(
+        cols, at, index, transposed(depth_flat, np.float32), transposed(slots, np.int32)
+    )
 
 
 def _pixels(geom: Geometry) -> _Pixels:
@@ -270,6 +319,7 @@ def _compiled_pass(
     jitter_key: int | None,
     depth_slope: float | None,
     linear: bool = False,
+    transposed: bool = False,
 ) -> tuple[np.ndarray, int]:
     """:func:`_one_pass` as one compiled loop per pixel
     (:func:`core.backends.numba.separable.separable_pass`): the same float32 operations per
@@ -277,6 +327,9 @@ def _compiled_pass(
     ``exp`` comes from another library: within float32 rounding).
 
     Parameters are :func:`_one_pass`'s, but ``src`` is (H·W, C) float32, pixel-major.
+    With ``transposed`` (the vertical pass, ``axis`` 1) ``src``, ``depth_flat`` and
+    ``mat_flat`` are the frame's arrays transposed, and ``px.index`` indexes them
+    (:class:`_Columns`).
 
     Returns
     -------
@@ -285,6 +338,8 @@ def _compiled_pass(
     """
     separable_pass = compiled_module("separable").separable_pass
     coord, base, stride, size, scale, first, span = _axis(px, shape, axis)
+    if transposed:  # a column of the frame is a run of the transposed arrays
+        base, stride = (px.x - px.origin[1]) * shape[0], 1
     present = np.zeros(tab.width.shape[0], bool)
     present[px.slots] = True
     p_count = px.index.size
@@ -465,17 +520,26 @@ def _two_passes_compiled(
     lighting, depth, slots, px, shape, tab, terms, key, slope, linear, backend="numpy"
 ) -> tuple[np.ndarray, int]:
     """:func:`_two_passes` with :func:`_compiled_pass`, on pixel-major images (a read's
-    channels share a cache line): the same values."""
+    channels share a cache line), the vertical pass on transposed ones (its reads then
+    run along memory, :class:`_Columns`): the same values.
+
+    ``px.columns`` is made from ``depth`` and ``slots`` on the first call with ``px``
+    (the pixels of a Geometry, whose later frames have the same depth and slots).
+    """
     hgt, wid = shape
     light = np.ascontiguousarray(lighting.reshape(-1, 3), dtype=np.float32)
     depth_flat = depth.reshape(-1).astype(np.float32)
     first, fb1 = _compiled_pass(
         light, px, shape, depth_flat, slots, tab, tab.h, 0, key, slope, linear
     )
-    inter = np.zeros((hgt * wid, 3 * terms), np.float32)
-    inter[px.index] = first
+    if px.columns is None:
+        px.columns = _columns(px, shape, depth_flat, slots)
+    cols = px.columns
+    inter = np.zeros((wid * hgt, 3 * terms), np.float32)
+    inter[cols.index] = first
     vkey = None if key is None else key + 1
     second, fb2 = _compiled_pass(
-        inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear
-    )
-    return second.T, fb1 + fb2
+        inter, cols.px, shape, cols.depth, cols.slots, tab, tab.v, 1, vkey, slope, linear,
+        transposed=True,
+    )  # fmt: skip
+    return second[cols.at].T, fb1 + fb2
