@@ -74,7 +74,7 @@ def compile_all(pixels: int | None = None) -> None:
     for build in (separable_pass_slope, separable_pass_exp):
         build(
             np.ones((1, 3), f32), 0, 1, *pix, yes, *tables, np.zeros(3, np.bool_),
-            np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True,
+            np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True, at,
             np.zeros((1, 3), f32),
         )  # fmt: skip
     table = neighbour_table(at, np.ones(1, np.int32), at, 1, 1)

@@ -63,6 +63,7 @@ def _separable_pass(
     slope,
     neg_inv2tau,
     linear,
+    rows,
     out,
 ):
     """One 1D separable pass of one RGB group, per pixel:
@@ -91,7 +92,8 @@ def _separable_pass(
     slope : float64 depth slope (the slope follow; the exponential build ignores it)
     neg_inv2tau : (K,) float32, −1/(2τ) per slot (the exponential follow)
     linear : bool, read between the two nearest pixels
-    out : (P, 3·R') float32, zeroed; gains Σ_i w_i·sample_i
+    rows : (P,) int64, the row of ``out`` each pixel's sums go to
+    out : (N, 3·R') float32, zeroed; row ``rows[k]`` gains pixel k's Σ_i w_i·sample_i
 
     Returns
     -------
@@ -277,17 +279,19 @@ def _separable_pass(
                 if reps > 1:
                     for j in range(nb):
                         row = (np.uint64(ib[_SS + j]) * un + ui) * wc
+                        r = rows[k0 + j]
                         for rep in range(1, reps):
                             o = c0 + 3 * rep
                             wo = row + np.uint64(o)
-                            out[k0 + j, o] += w32[wo] * fb[_SV0 + j]
-                            out[k0 + j, o + 1] += w32[wo + _ONE] * fb[_SV1 + j]
-                            out[k0 + j, o + 2] += w32[wo + _TWO] * fb[_SV2 + j]
+                            out[r, o] += w32[wo] * fb[_SV0 + j]
+                            out[r, o + 1] += w32[wo + _ONE] * fb[_SV1 + j]
+                            out[r, o + 2] += w32[wo + _TWO] * fb[_SV2 + j]
             for j in range(nb):
                 nfb += ib[_SBAD + j] * ib[_SCORE + j]
-                out[k0 + j, c0] = fb[_SA0 + j]
-                out[k0 + j, c0 + 1] = fb[_SA1 + j]
-                out[k0 + j, c0 + 2] = fb[_SA2 + j]
+                r = rows[k0 + j]
+                out[r, c0] = fb[_SA0 + j]
+                out[r, c0 + 1] = fb[_SA1 + j]
+                out[r, c0 + 2] = fb[_SA2 + j]
         fallback[t] = nfb
     return fallback
 
