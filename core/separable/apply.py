@@ -450,14 +450,11 @@ def apply(
     t0 = time.perf_counter()
     slope = depth_slope if params.follow == "slope" else None
     linear = params.filter == "linear"
-    second, fallback = _two_passes(
+    shaded, fallback = _two_passes(
         frame.lighting, frame.depth, geom.slots, px, geom.shape, tab, j, key, slope, linear,
         backend=backend,
     )  # fmt: skip
     pass_ms = (time.perf_counter() - t0) * 1e3
-    summed = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64)
-    big = float(np.finfo(np.float32).max)
-    shaded = np.ascontiguousarray(np.clip(np.nan_to_num(summed.T, nan=0.0, posinf=big), 0.0, big))
     per_read = 2 if linear else 1
     counted = geom.size if geom.core is None else int(np.count_nonzero(geom.core))
     tap_reads = 2 * per_read * (params.taps - 1) * counted
@@ -472,6 +469,16 @@ def apply(
             "tap_reads": tap_reads,
         },
     )
+
+
+_BIG = float(np.finfo(np.float32).max)
+
+
+def _finish(terms: np.ndarray, j: int) -> np.ndarray:
+    """(P, 3) float64 C-contiguous: the (3J, P) float32 ``terms`` summed over the J terms
+    in float64, NaN as 0, clipped to [0, float32 max]."""
+    summed = terms.reshape(j, 3, -1).sum(axis=0, dtype=np.float64)
+    return np.ascontiguousarray(np.clip(np.nan_to_num(summed.T, nan=0.0, posinf=_BIG), 0.0, _BIG))
 
 
 @numpy_side("separable_pass")
@@ -501,7 +508,8 @@ def _two_passes(
 
     Returns
     -------
-    second : (3J, P) float32, the vertical pass's output in the Geometry's pixel order
+    shaded : (P, 3) float64, L per SSS pixel in the Geometry's order: the vertical
+        pass's terms summed (:func:`_finish`), ≥ 0
     fallback : int, zero-weight reads of both passes
     """
     hgt, wid = shape
@@ -514,7 +522,7 @@ def _two_passes(
     second, fb2 = _one_pass(inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear)
     unsorted = np.empty_like(second)
     unsorted[:, px.order] = second
-    return unsorted, fb1 + fb2
+    return _finish(unsorted, terms), fb1 + fb2
 
 
 @compiled_side("separable_pass")
@@ -525,7 +533,8 @@ def _two_passes_compiled(
     channels share a cache line), the vertical pass on transposed ones (its reads then
     run along memory, :class:`_Columns`): the same values. The horizontal pass writes
     its sums into the vertical pass's (transposed) image, the vertical pass into the
-    Geometry's pixel order: no gathers or scatters between them.
+    Geometry's pixel order: no gathers or scatters between them; a single term is
+    finished (:func:`_finish`) by a compiled pass.
 
     ``px.columns`` is made from ``depth`` and ``slots`` on the first call with ``px``
     (the pixels of a Geometry, whose later frames have the same depth and slots).
@@ -547,4 +556,6 @@ def _two_passes_compiled(
         inter, cols.px, shape, cols.depth, cols.slots, tab, tab.v, 1, vkey, slope, linear,
         transposed=True, rows=cols.px.order, out=second,
     )  # fmt: skip
-    return second.T, fb1 + fb2
+    if terms == 1:  # one term: _finish's conversion, NaN test and clip in one pass
+        return compiled_module("separable").finish_single(second), fb1 + fb2
+    return _finish(second.T, terms), fb1 + fb2

@@ -13,7 +13,7 @@ from .history import _history_pass, read_column, reproject, write_column
 from .image import _composite_pass, _float_image_pass
 from .region import _region
 from .sampling import PLANAR, build_for, pixel_sums, pixel_sums_serial, relight, tile_order
-from .separable import separable_pass_exp, separable_pass_slope
+from .separable import finish_single, separable_pass_exp, separable_pass_slope
 from .surface import surface_arrays
 from .temporal import (
     MULTIPLICATIVE,
@@ -77,6 +77,7 @@ def compile_all(pixels: int | None = None) -> None:
             np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True, at,
             np.zeros((1, 3), f32),
         )  # fmt: skip
+    finish_single(np.ones((1, 3), f32))
     table = neighbour_table(at, np.ones(1, np.int32), at, 1, 1)
     neighbourhood_pass(g3, yes, table, g3.copy(), g3.copy())
     rgb = [np.ones((1, 3)) for _ in range(8)]

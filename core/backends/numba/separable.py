@@ -317,3 +317,30 @@ def separable_pass(exponential: bool):
     """The build of the separable pass for a follow rule (the slope rule, or the
     exponential one): a compiled function of :func:`_separable_pass`'s arguments."""
     return separable_pass_exp if exponential else separable_pass_slope
+
+
+_F32_BIG = np.float64(np.finfo(np.float32).max)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def finish_single(terms):
+    """core.separable.apply._finish of a single term: (P, 3) float32 -> float64, NaN as 0,
+    clipped to [0, float32 max] (np.clip's rule: −0 becomes +0).
+
+    Parameters
+    ----------
+    terms : (P, 3) float32, the vertical pass's sums
+
+    Returns
+    -------
+    (P, 3) float64
+    """
+    out = np.empty((terms.shape[0], 3))
+    for k in numba.prange(terms.shape[0]):
+        for c in range(3):
+            v = np.float64(terms[k, c])
+            if np.isnan(v):
+                v = 0.0
+            v = v if v > 0.0 else 0.0
+            out[k, c] = v if v < _F32_BIG else _F32_BIG
+    return out
