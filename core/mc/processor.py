@@ -213,7 +213,7 @@ class MonteCarloProcessor:
                     clamp=p.temporal_clamp,
                     tolerance=p.temporal_tolerance,
                     noise=noise,
-                    scale=light_scale(frame, profile, b),
+                    scale=light_scale(frame, profile, b, p.backend),
                     backend=p.backend,
                 )
             hist.frame = frame.number

@@ -10,9 +10,17 @@ import numpy as np
 from ...sampling.qmc import DIRECTIONS
 from .adaptive import _counts_pass, _update_pass
 from .history import _history_pass, read_column, reproject, write_column
-from .image import _composite_pass, _float_image_pass
+from .image import _composite_pass, _float_image_pass, row_sums
 from .region import _region
-from .sampling import PLANAR, build_for, pixel_sums, pixel_sums_serial, relight, tile_order
+from .sampling import (
+    PLANAR,
+    build_for,
+    estimate_variance,
+    pixel_sums,
+    pixel_sums_serial,
+    relight,
+    tile_order,
+)
 from .separable import finish_single, separable_pass_exp, separable_pass_slope
 from .surface import surface_arrays
 from .temporal import (
@@ -41,6 +49,7 @@ def compile_all(pixels: int | None = None) -> None:
         _compile_sampling(fn)
     tile_order(np.zeros(1, np.int64), np.zeros(1, np.int64), 1)
     relight(np.ones((1, 3), np.float32), np.ones(8, np.float32))
+    estimate_variance(np.ones((1, 2)), np.zeros(1, np.int64), np.ones(1, np.int64), np.ones(1))
     depth = np.full((2, 2), 2.0, np.float32)
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
         surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
@@ -57,6 +66,7 @@ def compile_all(pixels: int | None = None) -> None:
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
     _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
+    row_sums(np.ones((1, 3)))
     plane, mask = np.ones((1, 1), np.float32), np.ones((1, 1), np.bool_)
     for dtype in (np.float16, np.float32):  # the history's storage
         for slots in (np.int32, np.int64):  # a Frame's slots, or wider ones

@@ -203,6 +203,56 @@ def float_image_cases() -> list[Case]:
     return cases
 
 
+def row_mean_cases() -> list[Case]:
+    def make(name, size, special):
+        def build(backend):
+            rng = np.random.default_rng(size)
+            rows = rng.lognormal(0, 3, (size, 3))  # a wide range: the order of the sum shows
+            rows[::7, 1] *= -1.0
+            if special:
+                rows[5, 0], rows[9, 2] = np.inf, np.nan
+            return (rows,), {"backend": backend}
+
+        def check(a, b, *_):
+            assert a.shape == b.shape == (3,)
+            same_bits(a, b, name)
+            assert np.isnan(a[2]) if special else np.isfinite(a).all()
+
+        return Case(name, build, check)
+
+    return [
+        make("one-row", 1, False),
+        make("1080p-rows", 915_076, False),
+        make("inf-nan", 64, True),
+    ]
+
+
+def estimate_variance_cases() -> list[Case]:
+    def make(name, size):
+        def build(backend):
+            rng = np.random.default_rng(size)
+            counts = rng.integers(0, 6, size)
+            gamma_sum = rng.random(size) * (rng.random(size) < 0.9)  # some without γ
+            active = np.flatnonzero((counts > 0) & (gamma_sum > 0))
+            y = rng.lognormal(0, 2, (active.size, 4))
+            sums = np.stack([y[:, 0] * counts[active], y[:, 1] * counts[active] + y[:, 2]], 1)
+            sums[::13, 1] = sums[::13, 0] ** 2 / counts[active][::13]  # exactly no spread
+            sums[::17, 1] = 0.0  # a negative spread: clipped to 0
+            sums[::19, 0] = np.nan
+            return (sums, active, counts, gamma_sum), {"backend": backend}
+
+        def check(a, b, args_a, _):
+            counts = args_a[0][2]
+            assert a.dtype == b.dtype == np.float64 and a.shape == counts.shape
+            same_bits(a, b, name)
+            assert (a == 0).any() and np.isinf(a).any() and np.isnan(a).any()
+            assert (a[np.isfinite(a)] >= 0).all()
+
+        return Case(name, build, check)
+
+    return [make("small", 200), make("1080p", 915_076)]
+
+
 def burley_region_cases() -> list[Case]:
     rng = np.random.default_rng(3)
     d = np.array([[0, 0, 0], [0.01, 0.005, 0.002], [0.02, 0.0, 0.004], [1e-9, 5.0, 0.3]])
@@ -679,8 +729,10 @@ def composite_cases() -> list[Case]:
 
 CASES: dict[str, Callable[[], list[Case]]] = {
     "sampling": sampling_cases,
+    "estimate_variance": estimate_variance_cases,
     "surface": surface_cases,
     "float_image": float_image_cases,
+    "row_mean": row_mean_cases,
     "burley_region": burley_region_cases,
     "spvg_counts": spvg_counts_cases,
     "spvg_update": spvg_update_cases,
