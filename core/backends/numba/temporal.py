@@ -212,6 +212,14 @@ def _clip(x, lo, hi):
 def _finish_cut(n, p0, p1, p2, s0, s1, s2, d0, d1, d2, sigma, floor, mode, noise_sigmas):
     """The noise test's cut of the frame count ``n``: the history's prediction
     (clamped accumulation p, shift s) against the estimate d in units of ``sigma``."""
+    return n * np.exp(
+        _noise_exponent(p0, p1, p2, s0, s1, s2, d0, d1, d2, sigma, floor, mode, noise_sigmas)
+    )
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _noise_exponent(p0, p1, p2, s0, s1, s2, d0, d1, d2, sigma, floor, mode, noise_sigmas):
+    """The exponent of :func:`_finish_cut`'s factor, −(z − NOISE_SIGMAS)₊²/2."""
     if mode == MULTIPLICATIVE:
         g0 = p0 * s0 - d0
         g1 = p1 * s1 - d1
@@ -225,7 +233,7 @@ def _finish_cut(n, p0, p1, p2, s0, s1, s2, d0, d1, d2, sigma, floor, mode, noise
     if np.isnan(z):
         z = np.inf
     m = max(z - noise_sigmas, 0.0)
-    return n * np.exp(-0.5 * (m * m))
+    return -0.5 * (m * m)
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -380,6 +388,20 @@ def reuse_start_history(
             sigma[k] = _pooled_sigma(noise, active, table, k)
 
 
+#: Pixels per parallel task of :func:`reuse_finish_history`, and per block of it.
+_FINISH_TASK = 1024
+_FB = 8
+#: Rows of a block's float64 buffer (each _FB long): the 9 neighbours' values per
+#: channel (row 3e + c), whether each counts (1.0 or 0.0), and the pixel's history
+#: accumulation, frame count, pooled noise, shift, estimate, value, the noise test's
+#: exponent.
+_FOK = 27 * _FB
+_FP0, _FP1, _FP2, _FN, _FSG, _FS0, _FS1, _FS2, _FD0, _FD1, _FD2, _FA0, _FA1, _FA2, _FMM = (
+    (36 + r) * _FB for r in range(15)
+)
+_FROWS = 51
+
+
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def reuse_finish_history(
     distant, value, shift, n_in, active, index, acc, acc_n, table, clamp, sigma, floor,
@@ -402,33 +424,107 @@ def reuse_finish_history(
     finite_clamp = np.isfinite(clamp)
     use_noise = sigma.shape[0] > 0
     acc_r, acc_g, acc_b = acc
-    for k in numba.prange(distant.shape[0]):
-        q = np.uint64(index[k])
-        p0 = np.float64(acc_r[q])
-        p1 = np.float64(acc_g[q])
-        p2 = np.float64(acc_b[q])
-        if finite_clamp:
-            m0, m1, m2, s0, s1, s2 = _neighbours(value, active, table, k)
-            p0 = _clip(p0, m0 - clamp * s0, m0 + clamp * s0)
-            p1 = _clip(p1, m1 - clamp * s1, m1 + clamp * s1)
-            p2 = _clip(p2, m2 - clamp * s2, m2 + clamp * s2)
-        n = n_in[k]
-        if use_noise:
-            n = _finish_cut(
-                n, p0, p1, p2, shift[k, 0], shift[k, 1], shift[k, 2], distant[k, 0],
-                distant[k, 1], distant[k, 2], sigma[k], floor, mode, noise_sigmas,
-            )  # fmt: skip
-        lam = _weight(n, min_weight)
-        on = active[k]
-        a0 = (1.0 - lam) * p0 + lam * value[k, 0] if on else value[k, 0]
-        a1 = (1.0 - lam) * p1 + lam * value[k, 1] if on else value[k, 1]
-        a2 = (1.0 - lam) * p2 + lam * value[k, 2] if on else value[k, 2]
-        acc_r[q] = _stored(a0)
-        acc_g[q] = _stored(a1)
-        acc_b[q] = _stored(a2)
-        out[k, 0] = _output(a0, shift[k, 0], distant[k, 0], on, mode)
-        out[k, 1] = _output(a1, shift[k, 1], distant[k, 1], on, mode)
-        out[k, 2] = _output(a2, shift[k, 2], distant[k, 2], on, mode)
-        nk = n + 1.0 if on else 0.0
-        n_new[k] = nk
-        acc_n[q] = _stored(nk)
+    n_pix = distant.shape[0]
+    n_tasks = (n_pix + _FINISH_TASK - 1) // _FINISH_TASK
+    for t in numba.prange(n_tasks):
+        # Pixels in blocks of _FB, through stages: (1) the reads (scalar), (2) the
+        # neighbourhood statistics, the clamp and the noise test's exponent, straight-line
+        # float64 code the compiler vectorises (_neighbours' and reuse_finish's operations
+        # in their order per pixel: the divisions and square roots then run 8 at a
+        # time), (3) the library exp, (4) the accumulation and the stores. Lanes past a
+        # partial block's end hold stale values that are never stored.
+        fb = np.zeros(_FROWS * _FB)
+        end = min(n_pix, (t + 1) * _FINISH_TASK)
+        for k0 in range(t * _FINISH_TASK, end, _FB):
+            nb = min(_FB, end - k0)
+            for j in range(nb):
+                k = k0 + j
+                if finite_clamp:
+                    for e in range(9):
+                        jj = table[k, e]
+                        v0 = v1 = v2 = 0.0
+                        ok = False
+                        if jj >= 0:
+                            uj = np.uint64(jj)
+                            if active[uj] and not np.isnan(value[uj, 0]):
+                                ok = True
+                                v0 = value[uj, 0]
+                                v1 = value[uj, 1]
+                                v2 = value[uj, 2]
+                        fb[(3 * e) * _FB + j] = v0
+                        fb[(3 * e + 1) * _FB + j] = v1
+                        fb[(3 * e + 2) * _FB + j] = v2
+                        fb[_FOK + e * _FB + j] = 1.0 if ok else 0.0
+                q = np.uint64(index[k])
+                fb[_FP0 + j] = np.float64(acc_r[q])
+                fb[_FP1 + j] = np.float64(acc_g[q])
+                fb[_FP2 + j] = np.float64(acc_b[q])
+                fb[_FN + j] = n_in[k]
+                fb[_FSG + j] = sigma[k] if use_noise else 0.0
+                fb[_FS0 + j] = shift[k, 0]
+                fb[_FS1 + j] = shift[k, 1]
+                fb[_FS2 + j] = shift[k, 2]
+                fb[_FD0 + j] = distant[k, 0]
+                fb[_FD1 + j] = distant[k, 1]
+                fb[_FD2 + j] = distant[k, 2]
+                fb[_FA0 + j] = value[k, 0]
+                fb[_FA1 + j] = value[k, 1]
+                fb[_FA2 + j] = value[k, 2]
+            for j in range(_FB):
+                p0 = fb[_FP0 + j]
+                p1 = fb[_FP1 + j]
+                p2 = fb[_FP2 + j]
+                if finite_clamp:
+                    t0 = t1 = t2 = 0.0
+                    q0 = q1 = q2 = 0.0
+                    count = 0.0
+                    for e in range(9):
+                        v0 = fb[(3 * e) * _FB + j]
+                        v1 = fb[(3 * e + 1) * _FB + j]
+                        v2 = fb[(3 * e + 2) * _FB + j]
+                        t0 += v0
+                        t1 += v1
+                        t2 += v2
+                        q0 += v0 * v0
+                        q1 += v1 * v1
+                        q2 += v2 * v2
+                        count += fb[_FOK + e * _FB + j]
+                    nn = max(count, 1.0)
+                    m0 = t0 / nn
+                    m1 = t1 / nn
+                    m2 = t2 / nn
+                    s0 = np.sqrt(max(q0 / nn - m0 * m0, 0.0))
+                    s1 = np.sqrt(max(q1 / nn - m1 * m1, 0.0))
+                    s2 = np.sqrt(max(q2 / nn - m2 * m2, 0.0))
+                    p0 = _clip(p0, m0 - clamp * s0, m0 + clamp * s0)
+                    p1 = _clip(p1, m1 - clamp * s1, m1 + clamp * s1)
+                    p2 = _clip(p2, m2 - clamp * s2, m2 + clamp * s2)
+                    fb[_FP0 + j] = p0
+                    fb[_FP1 + j] = p1
+                    fb[_FP2 + j] = p2
+                if use_noise:
+                    fb[_FMM + j] = _noise_exponent(
+                        p0, p1, p2, fb[_FS0 + j], fb[_FS1 + j], fb[_FS2 + j], fb[_FD0 + j],
+                        fb[_FD1 + j], fb[_FD2 + j], fb[_FSG + j], floor, mode, noise_sigmas,
+                    )  # fmt: skip
+            if use_noise:
+                for j in range(nb):
+                    fb[_FN + j] = fb[_FN + j] * np.exp(fb[_FMM + j])
+            for j in range(nb):
+                k = k0 + j
+                q = np.uint64(index[k])
+                n = fb[_FN + j]
+                lam = _weight(n, min_weight)
+                on = active[k]
+                a0 = (1.0 - lam) * fb[_FP0 + j] + lam * fb[_FA0 + j] if on else fb[_FA0 + j]
+                a1 = (1.0 - lam) * fb[_FP1 + j] + lam * fb[_FA1 + j] if on else fb[_FA1 + j]
+                a2 = (1.0 - lam) * fb[_FP2 + j] + lam * fb[_FA2 + j] if on else fb[_FA2 + j]
+                acc_r[q] = _stored(a0)
+                acc_g[q] = _stored(a1)
+                acc_b[q] = _stored(a2)
+                out[k, 0] = _output(a0, fb[_FS0 + j], fb[_FD0 + j], on, mode)
+                out[k, 1] = _output(a1, fb[_FS1 + j], fb[_FD1 + j], on, mode)
+                out[k, 2] = _output(a2, fb[_FS2 + j], fb[_FD2 + j], on, mode)
+                nk = n + 1.0 if on else 0.0
+                n_new[k] = nk
+                acc_n[q] = _stored(nk)
