@@ -3,14 +3,15 @@
 Runs one frame of the bench's flash scene (``core.synthetic``) at WxH through the
 ``separable`` method with each configuration below (and through ``as_ccv_t``, whose
 noise-free proxy is the linear pre-integrated kernel), records the arguments of
-every compiled pass it calls (``core.mc.estimator_numba.separable_pass``), then
+every compiled pass it calls (``core.backends.numba.separable.separable_pass``), then
 times those calls again, ``CALLS`` rounds, and prints the minimum and median of a
 frame's passes (ms, both directions, all terms). Run from the repo root:
 
     .venv/bin/python docs/checks/separable_pass.py [WxH] [CALLS]
 
 To compare with another revision, run it with that revision's worktree first on
-the import path (as ``steady_frame.py`` explains), alternately with this one.
+the import path (as ``steady_frame.py`` explains), alternately with this one
+(revisions before the backends floor kept the passes in ``core.mc.estimator_numba``).
 """
 
 import argparse
@@ -19,7 +20,7 @@ import time
 import numpy as np
 
 import cvsss
-from cvsss.core.mc import estimator_numba
+from cvsss.core.backends.numba import separable as estimator_numba
 from cvsss.core.method import MethodOptions
 from cvsss.core.methods import make_processor
 from cvsss.core.params import SeparableParams, SSSParams
