@@ -382,7 +382,9 @@ def take_rows(image: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> n
     return np.take(flat, index, axis=0)
 
 
-def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) -> np.ndarray:
+def light_scale(
+    frame: Frame, profile: Profile, rows: np.ndarray | None = None, backend: str = "numpy"
+) -> np.ndarray:
     """(3,) float64, linear: mean lighting pass over the scattering pixels of ``frame``.
 
     The frame-level yardstick of per-pixel rules (the temporal reuse's ε). A
@@ -391,7 +393,8 @@ def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) 
     1e-12 per channel (a black frame). ``rows``: (P, 3) float64, the lighting at
     the pixels of the whole frame's Geometry (``geom.at(frame.lighting)`` of
     :func:`geometry_of` of ``frame`` and ``profile``), which are those same pixels in
-    the same order: used instead of finding them again (the same value).
+    the same order: used instead of finding them again (the same value). ``backend``:
+    the mean's (the ``row_mean`` twin: the same value).
     """
     if frame.crop is not None and frame.crop.light_scale is not None:
         return np.asarray(frame.crop.light_scale, dtype=np.float64)
@@ -402,8 +405,38 @@ def light_scale(frame: Frame, profile: Profile, rows: np.ndarray | None = None) 
         ok = (slots > 0) & (slots < profile.n_slots) & np.isfinite(frame.depth.reshape(-1))
         ok[ok] = scatters[slots[ok]]
         rows = frame.lighting.reshape(-1, 3)[ok].astype(np.float64)
-    mean = rows.mean(axis=0) if rows.size else np.zeros(3)
+    mean = row_mean(rows, backend) if rows.size else np.zeros(3)
     return np.maximum(mean, 1e-12)
+
+
+@numpy_side("row_mean")
+def row_mean(rows: np.ndarray, backend: str = "numpy") -> np.ndarray:
+    """(3,) float64: the mean of (P, 3) float ``rows`` over the P rows, P > 0.
+
+    NumPy sums a C-contiguous (P, 3) array's rows one after the other (the inner loop
+    runs over the 3 channels); where ``backend`` resolves to numba so does one compiled
+    pass over float64 rows, without NumPy's per-row loop overhead (the same value).
+    """
+    return rows.mean(axis=0)
+
+
+def _float64_rows(rows: np.ndarray, backend: str = "numpy") -> bool:
+    """The compiled mean takes C-contiguous (P, 3) float64 rows, P > 0 (NumPy's order
+    of the sum is then row after row)."""
+    return (
+        rows.dtype == np.float64
+        and rows.ndim == 2
+        and rows.shape[1] == 3
+        and rows.shape[0] > 0
+        and rows.flags.c_contiguous
+    )
+
+
+@compiled_side("row_mean", supports=_float64_rows)
+def _row_mean_compiled(rows: np.ndarray, backend: str = "numpy") -> np.ndarray:
+    """:func:`row_mean` as one compiled pass: the sums row after row, then the division
+    by P (NumPy's mean divides the sums by the count)."""
+    return compiled_module("image").row_sums(rows) / rows.shape[0]
 
 
 def distant_region(

@@ -94,7 +94,7 @@ class _SteppedOperator:
         if self.samples and not precompile.compiled_ready(
             self._job.params.backend, self._job.methods
         ):
-            text += " (the first also prepares the numba kernels: a minute on first use)"
+            text += " (the first also prepares the numba passes: a minute on first use)"
         self._status(context, text + ", ESC to cancel")
         return {"RUNNING_MODAL"}
 

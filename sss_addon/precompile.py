@@ -25,7 +25,7 @@ threading layer aborts the process when two threads launch parallel regions
 at once.
 
 A process of its own can compile beside Blender: :func:`start_background`
-runs ``compile_kernels.py`` on Blender's Python when the cache is not complete
+runs ``compile_passes.py`` on Blender's Python when the cache is not complete
 (``core.backends.cache.is_complete``; an extension that ships its compiled passes,
 ``core.backends.shipped``, has them). The add-on starts it when it registers
 in Blender's UI (installed, updated, or Blender opened), at low priority, so
@@ -60,11 +60,11 @@ from ..core.methods import METHODS
 #: reported with its time.
 NOTICE = 2.0
 #: The status bar's text for the tick before :func:`ensure_compiled` (UI).
-COMPILING_STATUS = "preparing the numba kernels (about a minute the first time on this machine)"
+COMPILING_STATUS = "compiling the numba passes (about a minute the first time on this machine)"
 
 _state: dict = {}
 #: The script the background compile runs (:func:`start_background`).
-CHILD = Path(__file__).with_name("compile_kernels.py")
+CHILD = Path(__file__).with_name("compile_passes.py")
 
 #: The background compile's process (:func:`start_background`), while this process has one.
 _background: dict = {}
@@ -119,16 +119,16 @@ def ensure_compiled(
     thread.start()
     thread.join(NOTICE)
     if thread.is_alive() and log is not None:
-        log("compiling the numba kernels (first use on this machine, about a minute)…")
+        log("compiling the numba passes (first use on this machine, about a minute)…")
     thread.join()
     error, seconds = _state["error"], _state["ended"] - began
     if log is None:
         return
     if error is not None:
-        log(f"compiling the numba kernels failed: {type(error).__name__}: {error}")
+        log(f"compiling the numba passes failed: {type(error).__name__}: {error}")
     elif seconds > NOTICE:
         log(
-            f"compiled the numba kernels in {seconds:.1f} s; later runs load them from "
+            f"compiled the numba passes in {seconds:.1f} s; later runs load them from "
             f"{numba_cache.location()}"
         )
 
@@ -140,7 +140,7 @@ def start_background(
     pixels: int | None = None,
 ) -> bool:
     """Start compiling the kernels into the disk cache in a process of their own
-    (``compile_kernels.py``; at low priority without ``pixels``); whether one started.
+    (``compile_passes.py``; at low priority without ``pixels``); whether one started.
 
     ``pixels``: the job's frame size (H·W), whose kernels the process compiles
     first (:func:`ensure_compiled` waits for those only); None: all, in their order.
@@ -195,7 +195,7 @@ def _start(requested, methods, log, pixels) -> bool:
         daemon=True,
     ).start()
     if log is not None:
-        log("compiling the numba kernels in a background process (first use on this machine)")
+        log("compiling the numba passes in a background process (first use on this machine)")
     return True
 
 
@@ -243,20 +243,20 @@ def _wait_for_background(log: Callable[[str], None] | None) -> None:
     if ready is None:
         return
     if not ready.wait(NOTICE) and log is not None:
-        log("waiting for the numba kernels' compile in the background (first use)…")
+        log("waiting for the numba passes' compile in the background (first use)…")
     ready.wait()
     report = _background["report"]
     if log is None:
         return
     if "error" in report:
         log(
-            f"the background compile of the numba kernels failed ({report['error']}); "
+            f"the background compile of the numba passes failed ({report['error']}); "
             "compiling them here"
         )
     else:
         seconds = report.get("ready", report.get("seconds", 0.0))
         if seconds > NOTICE:
-            log(f"the numba kernels were compiled in the background in {seconds:.1f} s")
+            log(f"the numba passes were compiled in the background in {seconds:.1f} s")
 
 
 def _compile(pixels: int | None) -> None:

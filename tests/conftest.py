@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-# The numba kernels' background compile (sss_addon.precompile.start_background) is off
+# The numba passes' background compile (sss_addon.precompile.start_background) is off
 # in every test and in the processes they start, unless a test turns it on: when the
 # cache is not stamped complete yet, a job would otherwise start one and log two more
 # lines depending on which tests ran before it.
@@ -47,7 +47,7 @@ def rng():
     return np.random.default_rng(12345)
 
 
-# -- the numba kernels' preparation (sss_addon.precompile) ---------------------------
+# -- the numba passes' preparation (sss_addon.precompile) ---------------------------
 @pytest.fixture
 def no_compile():
     """No kernels prepared in this process yet, no background compile started (the module's

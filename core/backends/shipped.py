@@ -12,7 +12,7 @@ the module it was compiled in, which loading it imports again
 extension's modules are named after the user's repository
 (``bl_ext.user_default.cvsss``…).
 
-So the build (:func:`build`, run by ``make extension``) compiles every pass
+So the build (``tools/ship_passes.py``, run by ``make extension``) compiles every pass
 (:func:`core.backends.compile.compile_all`) for a CPU model every machine of a
 target runs (``NUMBA_CPU_NAME``: ``x86-64-v3``, the AVX2 machines, and
 ``generic``; see :data:`TARGETS`), with the package imported as
@@ -206,42 +206,8 @@ def attach(package: str) -> str | None:
     return attached
 
 
-# -- the build (make extension) -------------------------------------------------------
-def build(root: Path, out: Path, cpu: str) -> dict:
-    """Compile every pass of the add-on at ``root`` for CPU model ``cpu`` and write that
-    shipped build to ``out``/``cpu``; its manifest.
-
-    The compile runs in a process of its own (numba reads its CPU settings when it
-    is imported): ``sss_addon/compile_kernels.py``, which imports the add-on as
-    :data:`BUILD_PACKAGE`, with an empty cache and the shipped passes off.
-    """
-    import subprocess
-    import tempfile
-
-    requires = targets()[cpu]
-    with tempfile.TemporaryDirectory() as tmp:
-        env = dict(
-            os.environ,
-            NUMBA_CACHE_DIR=tmp,
-            NUMBA_CPU_NAME=cpu,
-            NUMBA_CPU_FEATURES="",  # the model's own features, none of this machine's
-            CVSSS_SHIPPED_PASSES="0",
-        )
-        script = root / "sss_addon" / "compile_kernels.py"
-        run = subprocess.run(
-            [sys.executable, str(script), str(root), BUILD_PACKAGE],
-            env=env,
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        if run.returncode or '"seconds"' not in run.stdout:
-            raise RuntimeError(f"compiling the passes failed: {run.stdout}{run.stderr}")
-        (folder,) = (p for p in Path(tmp).iterdir() if p.is_dir())
-        return _write(folder, out / cpu, root, cpu, requires)
-
-
-def _write(folder: Path, out: Path, root: Path, cpu: str, requires) -> dict:
+# -- the build (tools/ship_passes.py compiles; this writes what it compiled) ------
+def write_build(folder: Path, out: Path, root: Path, cpu: str, requires) -> dict:
     """Copy numba's cache files from ``folder`` to ``out``, each index stamped with the
     source's hash; then the manifest."""
     import numba
@@ -286,45 +252,3 @@ def blender_platform(manifest: dict) -> str:
     system = {"linux": "linux", "darwin": "macos", "win32": "windows"}[system]
     machine = {"x86_64": "x64", "aarch64": "arm64", "arm64": "arm64"}[machine]
     return f"{system}-{machine}"
-
-
-def add(folder: Path, zips: list[Path]) -> Path:
-    """Put the shipped builds in ``folder`` into the one of the extension ``zips`` built
-    for their platform (``blender_ext.py build --split-platforms``); that zip's path."""
-    import tomllib
-    import zipfile
-
-    builds = sorted(p for p in folder.iterdir() if (p / MANIFEST).is_file())
-    wanted = {blender_platform(json.loads((p / MANIFEST).read_text())) for p in builds}
-    if len(wanted) != 1:
-        raise RuntimeError(f"{folder}: builds for {sorted(wanted) or 'no platform'}")
-    (wanted,) = wanted
-    for path in zips:
-        with zipfile.ZipFile(path) as z:
-            built = tomllib.loads(z.read("blender_manifest.toml").decode())
-            names = set(z.namelist())
-        if built.get("build", {}).get("generated", {}).get("platforms") != [wanted]:
-            continue
-        if f"{PASSES.replace('.', '/')}/__init__.py" not in names:
-            raise RuntimeError(f"{path.name} holds no {PASSES}")
-        base = "/".join([*PASSES.split(".")[:-1], FOLDER.name])
-        with zipfile.ZipFile(path, "a", zipfile.ZIP_DEFLATED, compresslevel=9) as z:
-            for build_ in builds:  # each manifest after its files: it vouches for them
-                files = sorted(build_.iterdir(), key=lambda p: p.name == MANIFEST)
-                for file in files:
-                    z.write(file, f"{base}/{build_.name}/{file.name}")
-        return path
-    raise RuntimeError(f"no zip for {wanted} among {[p.name for p in zips]}")
-
-
-def main(argv: list[str]) -> None:
-    """``build <add-on root> <folder> [<cpu>...]``: compile the shipped builds (default:
-    every model of :func:`targets`) into ``folder``; ``add <folder> <zip>...``: put them
-    into the zip of their platform."""
-    if argv[:1] == ["build"] and len(argv) >= 3:
-        for cpu in argv[3:] or targets():
-            print(json.dumps(build(Path(argv[1]).resolve(), Path(argv[2]), cpu)), flush=True)
-    elif argv[:1] == ["add"] and len(argv) >= 3:
-        print(add(Path(argv[1]), [Path(a) for a in argv[2:]]))
-    else:
-        sys.exit(main.__doc__)

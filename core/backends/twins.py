@@ -66,8 +66,14 @@ TWINS: dict[str, Twin] = {
             "mc.estimator",
             "the distant samples of every active SSS pixel, summed per pixel",
         ),
+        Twin(
+            "estimate_variance",
+            "mc.estimator",
+            "the variance of each pixel's estimate from its samples' sums",
+        ),
         Twin("surface", "geometry", "area and normal of every pixel of the depth buffer"),
         Twin("float_image", "geometry", "per-pixel float values scattered into a float32 image"),
+        Twin("row_mean", "geometry", "the mean of (P, 3) rows: the frame's lighting scale"),
         Twin(
             "burley_region",
             "profiles.burley",
@@ -89,6 +95,11 @@ TWINS: dict[str, Twin] = {
             "mean and deviation over each pixel's 3×3 same-material neighbours",
         ),
         Twin("reuse_step", "mc.temporal", "the temporal reuse's per-pixel arithmetic"),
+        Twin(
+            "reuse",
+            "mc.temporal",
+            "the temporal reuse step: the history's reads, the arithmetic and the stores",
+        ),
         Twin("separable_pass", "separable.apply", "one 1D pass of the separable filter"),
         Twin("composite", "result", "the finished frame and the lighting image"),
     )

@@ -28,7 +28,10 @@ run on this machine, so it means something on any machine:
     2560×1440) and method (:data:`FRAME_METHODS`: the cost methods, ``as_ccv_t``
     and ``separable``), on the first frame of the sequence (no history
     yet: the adaptive methods take their initial count, an upper bound of a
-    steady frame's time; see :func:`section_frames`).
+    steady frame's time; see :func:`section_frames`); and ``steady``: seconds per
+    steady 1920×1080 frame of ``as_ccv_t`` and ``as_ccv`` on the default backend,
+    median and min–max of 5 frames each after 3 of warm-up, interleaved
+    (:func:`.frames.steady_frames`; the target ``as_ccv_t_1080p_s``).
 ``samples_time_r2``
     R² of a linear fit of sampling-step time against samples taken over the
     frames of ``fixed`` N ∈ {8, 16, 32, 64}, ``as``, ``as_ocv``, ``as_ccv``.

@@ -58,6 +58,13 @@ class BenchConfig:
     frame_sizes: tuple[Size, ...] = ((1280, 720), (1920, 1080), (2560, 1440))
     frame_methods: tuple[str, ...] = FRAME_METHODS
     frame_frames: int = 1
+    #: Steady frames (issue 46): these methods at this size (None: not measured), the
+    #: history warmed up over ``steady_warmup`` frames, then ``steady_runs`` frames each,
+    #: interleaved; seconds per frame, median and min–max (see frames.steady_frames).
+    steady_size: Size | None = (1920, 1080)
+    steady_methods: tuple[str, ...] = ("as_ccv", "as_ccv_t")
+    steady_warmup: int = 3
+    steady_runs: int = 5
     # samples → time fit
     fit_size: Size = (640, 360)
     fit_fixed_spp: tuple[int, ...] = (8, 16, 32, 64)
@@ -116,6 +123,8 @@ QUICK = BenchConfig(
     cost_fixed_spp=4,
     frame_sizes=((32, 18), (48, 27)),
     frame_methods=("fixed", "as_ccv", "as_ccv_t", "separable"),
+    steady_size=(32, 18),
+    steady_warmup=2,
     fit_size=(32, 18),
     fit_fixed_spp=(2, 8),
     fit_frames=2,

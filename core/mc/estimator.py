@@ -222,14 +222,49 @@ def estimate_distant(
     )  # fmt: skip
     spread = None
     if variance:
-        var_sum = np.zeros((geom.size, 2))
-        var_sum[active] = var_sums
-        m_all = counts.astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s2 = (var_sum[:, 1] - var_sum[:, 0] ** 2 / m_all) / (m_all - 1.0)
-            spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
-        spread[(m_all == 0) | (geom.gamma_sum == 0)] = 0.0
+        spread = estimate_variance(var_sums, active, counts, geom.gamma_sum, backend=backend)
     return DistantEstimate(distant, counted, int(fallback), spread)
+
+
+@numpy_side("estimate_variance")
+def estimate_variance(
+    var_sums: np.ndarray,
+    active: np.ndarray,
+    counts: np.ndarray,
+    gamma_sum: np.ndarray,
+    backend: str = "numpy",
+) -> np.ndarray:
+    """(P,) float64: the variance of each pixel's estimate Î (its luminance, linear²)
+    from its samples' sums: the sample variance over m, 0 without samples (or without
+    distant energy), inf with one sample.
+
+    Parameters
+    ----------
+    var_sums : (A, 2) float64, Σy and Σy² of the active pixels' samples' luminance
+    active : (A,) int64, the active pixels (counts > 0 and γ > 0), ascending
+    counts : (P,) int64, samples per pixel; gamma_sum : (P,) float64, Σ_c γ_c
+    backend : one of core.params.BACKENDS; where it resolves to numba, one compiled
+        pass with the same float64 operations (the same values)
+    """
+    var_sum = np.zeros((counts.shape[0], 2))
+    var_sum[active] = var_sums
+    m_all = counts.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s2 = (var_sum[:, 1] - var_sum[:, 0] ** 2 / m_all) / (m_all - 1.0)
+        spread = np.where(m_all > 1, np.maximum(s2, 0.0) / m_all, np.inf)
+    spread[(m_all == 0) | (gamma_sum == 0)] = 0.0
+    return spread
+
+
+@compiled_side("estimate_variance")
+def _estimate_variance_compiled(var_sums, active, counts, gamma_sum, backend="numpy"):
+    """:func:`estimate_variance` in one compiled pass (NumPy's takes a dozen)."""
+    return compiled_module("sampling").estimate_variance(
+        np.ascontiguousarray(var_sums, np.float64),
+        np.ascontiguousarray(active, np.int64),
+        np.ascontiguousarray(counts, np.int64),
+        np.ascontiguousarray(gamma_sum, np.float64),
+    )
 
 
 @numpy_side("sampling")

@@ -75,6 +75,32 @@ def _storage(dtype: str) -> np.dtype:
     return np.dtype(np.float16 if dtype == "float16" else np.float32)
 
 
+def _block(buffers: list[np.ndarray], shape: tuple[int, int], dtype: np.dtype) -> np.ndarray:
+    """(F, H, W): the F buffers as the rows of one C-contiguous array: the array they
+    are the rows of, in order (as :meth:`History.empty` and the compiled reprojection
+    make them), else a stacked copy."""
+    if not buffers:
+        return np.zeros((0, *shape), dtype)
+    base = buffers[0].base
+    if (
+        isinstance(base, np.ndarray)
+        and base.shape == (len(buffers), *shape)
+        and base.dtype == dtype
+        and base.flags.c_contiguous
+    ):
+        start = base.__array_interface__["data"][0]
+        if all(
+            b.base is base
+            and b.shape == shape
+            and b.dtype == dtype
+            and b.__array_interface__["data"][0] == start + i * base.strides[0]
+            and b.flags.c_contiguous
+            for i, b in enumerate(buffers)
+        ):
+            return base
+    return np.stack(buffers)
+
+
 @dataclass
 class History:
     """History of one image, aligned with the frame it was last updated on.
@@ -146,7 +172,10 @@ class History:
         """
         dt = _storage(precision)
         half = precision == "float16" and scaled
-        buffers = {name: np.zeros(shape, dtype=dt) for name in cls.fields(temporal, cv)}
+        names = cls.fields(temporal, cv)
+        # The buffers are the rows of one array (see _block): the compiled reprojection
+        # fetches them all in one pass.
+        buffers = dict(zip(names, np.zeros((len(names), *shape), dtype=dt)))
         return cls(
             shape=tuple(shape),
             precision=precision,
@@ -382,32 +411,30 @@ class History:
             )
 
     def _frame_dtypes(self, motion, depth, material, backend="numpy") -> bool:
-        """``supports`` of the compiled reprojection: the passes' Frame dtypes."""
+        """``supports`` of the compiled reprojection: the passes' Frame dtypes, and
+        buffers of the storage dtype and the image's shape."""
         return (
             depth.dtype == np.float32
             and np.asarray(material).dtype.kind in "iu"
             and (motion is None or motion.dtype == np.float32)
             and self.depth.dtype == np.float32
+            and all(b.dtype == self.dtype and b.shape == self.shape for b in self.buffers.values())
         )
 
     @compiled_side("reproject", supports=_frame_dtypes)
     def _reproject_compiled(self, motion, depth, material, backend="numpy") -> History:
-        """:meth:`reproject` as compiled passes: one for the source pixels, one per
-        buffer (4x faster than NumPy's at 1920×1080)."""
+        """:meth:`reproject` as one compiled pass over the pixels: the source pixels, and
+        every buffer and mask fetched (the same history). The new buffers are the rows
+        of one array, as :meth:`empty` makes them."""
         self._check_shape(depth)
-        passes = compiled_module("history")
-        src, inside, same = passes.reproject_map(
-            motion, depth, material, self.depth, self.material, REPROJECT_DEPTH_TOLERANCE
-        )
-        buffers = {
-            k: passes.fetch(v, src, same if k in RESET_FIELDS else inside)
-            for k, v in self.buffers.items()
-        }
-        valid, cv_valid = (
-            passes.fetch(self.valid, src, same),
-            passes.fetch(self.cv_valid, src, same),
-        )
-        return self._aligned(buffers, valid, cv_valid, depth, material)
+        names = list(self.buffers)
+        block = _block(list(self.buffers.values()), self.shape, self.dtype)
+        reset = np.array([name in RESET_FIELDS for name in names], dtype=bool)
+        out, valid, cv_valid = compiled_module("history").reproject(
+            motion, depth, material, self.depth, self.material, REPROJECT_DEPTH_TOLERANCE,
+            block, reset, self.valid, self.cv_valid,
+        )  # fmt: skip
+        return self._aligned(dict(zip(names, out)), valid, cv_valid, depth, material)
 
     # -- checkpoints --------------------------------------------------------
     def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
@@ -526,9 +553,15 @@ class History:
         frame = int(get("meta")[-1])
         h, w = np.shape(arrays[prefix + "valid"])
         start = prefix + "buf_"
-        buffers = {
-            k[len(start) :]: np.asarray(arrays[k]).copy() for k in keys if k.startswith(start)
-        }
+        names = [k for k in keys if k.startswith(start)]
+        loaded = [np.asarray(arrays[k]) for k in names]
+        if loaded and all(
+            a.dtype == loaded[0].dtype and a.shape == loaded[0].shape for a in loaded
+        ):
+            copies = list(np.stack(loaded))  # the rows of one array, as empty() makes them
+        else:
+            copies = [a.copy() for a in loaded]
+        buffers = {k[len(start) :]: v for k, v in zip(names, copies)}
         # Checkpoints written before var_scale existed stored σ² unscaled.
         var_scale = float(get("var_scale")) if prefix + "var_scale" in keys else 1.0
         return cls(

@@ -186,11 +186,14 @@ class MonteCarloProcessor:
         sampling_ms = (time.perf_counter() - t0) * 1e3
 
         b = geom.at(frame.lighting).astype(np.float64)
+        # The part of B that does not scatter far, (1 − γ)·B: the proxy's and the
+        # shading's (computed once).
+        near = (1.0 - geom.gamma) * b
         distant = est.distant
         proxy = None
         if self.method.temporal == "guided" and p.temporal_mode == "multiplicative":
             t_proxy = time.perf_counter()
-            proxy = self._proxy(frame, profile, geom, b)
+            proxy = self._proxy(frame, profile, geom, near)
             sampling_ms += (time.perf_counter() - t_proxy) * 1e3
 
         t1 = time.perf_counter()
@@ -214,13 +217,13 @@ class MonteCarloProcessor:
                     clamp=p.temporal_clamp,
                     tolerance=p.temporal_tolerance,
                     noise=noise,
-                    scale=light_scale(frame, profile, b),
+                    scale=light_scale(frame, profile, b, p.backend),
                     backend=p.backend,
                 )
             hist.frame = frame.number
             self.history = hist
         update_ms = (time.perf_counter() - t1) * 1e3
-        shaded = (1.0 - geom.gamma) * b + distant
+        shaded = near + distant
         if self.method.kind != "none":  # none is the frame without scattering (F = Combined)
             shaded = scale_shaded(frame, geom, profile, shaded, p.distance, p.backend)
         return assemble(
@@ -242,8 +245,11 @@ class MonteCarloProcessor:
             backend=p.backend,
         )
 
-    def _proxy(self, frame: Frame, profile: Profile, geom: Geometry, b: np.ndarray) -> np.ndarray:
-        """(P, 3) the separable estimate of the distant integral: the noise-free proxy."""
+    def _proxy(
+        self, frame: Frame, profile: Profile, geom: Geometry, near: np.ndarray
+    ) -> np.ndarray:
+        """(P, 3) the separable estimate of the distant integral: the noise-free proxy
+        (the separable estimate of L less ``near``, (1 − γ)·B)."""
         from ..separable.apply import apply
         from ..separable.kernels import build_kernels
 
@@ -264,4 +270,4 @@ class MonteCarloProcessor:
         )
         if full is not geom:
             shaded = shaded[np.searchsorted(full.index, geom.index)]
-        return shaded - (1.0 - geom.gamma) * b
+        return shaded - near

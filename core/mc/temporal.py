@@ -131,15 +131,27 @@ def _neighbourhood_compiled(
     geom: Geometry, values: np.ndarray, active: np.ndarray, backend: str = "numpy"
 ) -> tuple:
     """:func:`neighbourhood` in one compiled pass: the same bits."""
-    h, w = geom.shape
-    passes = compiled_module("temporal")
     mean = np.empty((geom.size, 3))
     std = np.empty((geom.size, 3))
+    compiled_module("temporal").neighbourhood_pass(
+        np.ascontiguousarray(values, np.float64),
+        np.ascontiguousarray(active, bool),
+        _neighbour_table(geom),
+        mean,
+        std,
+    )
+    return mean, std
+
+
+def _neighbour_table(geom: Geometry) -> np.ndarray:
+    """(P, 9) int32: each pixel's 3×3 neighbours of its slot, for the compiled passes
+    (core.backends.numba.temporal.neighbour_table)."""
+    h, w = geom.shape
     # Which neighbours share the pixel's slot depends on the Geometry alone: made
     # once, kept with it (a still scene's next frames reuse it).
-    table = geom.memo(
+    return geom.memo(
         "neighbours",
-        lambda: passes.neighbour_table(
+        lambda: compiled_module("temporal").neighbour_table(
             np.ascontiguousarray(geom.index, np.int64),
             np.ascontiguousarray(geom.mat, np.int32),
             _pixel_at(geom),
@@ -147,14 +159,6 @@ def _neighbourhood_compiled(
             int(h),
         ),
     )
-    passes.neighbourhood_pass(
-        np.ascontiguousarray(values, np.float64),
-        np.ascontiguousarray(active, bool),
-        table,
-        mean,
-        std,
-    )
-    return mean, std
 
 
 def reuse(
@@ -200,22 +204,44 @@ def reuse(
         Default: the mean of ``control`` over these pixels (a tile must pass
         its whole image's).
     backend : one of core.params.BACKENDS; where it resolves to numba the per-pixel
-        arithmetic and the neighbourhood statistics are compiled passes
-        (:func:`_step_compiled`, the ``reuse_step`` twin; the same values within an ulp
-        of ``log``/``exp``)
+        arithmetic and the neighbourhood statistics are compiled passes (the ``reuse``
+        twin: on a float32 history two passes that also read and store the history,
+        :func:`_reuse_compiled`; else the ``reuse_step`` twin, :func:`_step_compiled`
+        between the history's reads and writes; the same values within an ulp of
+        ``log``/``exp``)
 
     Returns
     -------
     distant : (P, 3) float64, the estimate after reuse
     frames : (P,) float64, the frame count n after this frame (0 where inactive)
     """
-    idx = geom.index
     distant = np.asarray(distant, dtype=np.float64)
     control = np.asarray(control, dtype=np.float64)
     if scale is None:
         scale = control.mean(axis=0) if control.size else np.zeros(3)
     scale = np.maximum(np.asarray(scale, dtype=np.float64), 1e-12)
     eps = 1e-3 * scale  # per channel, relative to the frame's lighting
+    return _reuse(
+        hist, geom, distant, control, alpha, proxy, active, eps, mode=mode,
+        min_weight=min_weight, clamp=clamp, tolerance=tolerance, noise=noise,
+        floor=1e-12 * scale @ _Y, backend=backend,
+    )  # fmt: skip
+
+
+def _fields(mode: str) -> tuple[str, ...]:
+    """The history buffers the reuse reads and writes in ``mode``."""
+    guided = mode != "plain"
+    return (*_ACC, "acc_n", *(_CTL if guided else ()), *(_PROX if mode == "multiplicative" else ()))
+
+
+@numpy_side("reuse")
+def _reuse(
+    hist, geom, distant, control, alpha, proxy, active, eps, *, mode, min_weight, clamp,
+    tolerance, noise, floor, backend,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`reuse` from ``eps`` (ε per channel) and ``floor`` (the noise yardstick's
+    lower bound) on: the history's reads, :func:`_step` and its writes."""
+    idx = geom.index
     n = hist.read("acc_n", idx, backend)
     prev = hist.read_columns(_ACC, idx, backend)
     ctl_prev = hist.read_columns(_CTL, idx, backend) if mode != "plain" else None
@@ -223,7 +249,7 @@ def reuse(
     acc, out, n_new = _step(
         geom, distant, control, alpha, proxy, active, n, prev, ctl_prev, prox_prev, eps,
         mode=mode, min_weight=min_weight, clamp=clamp, tolerance=tolerance, noise=noise,
-        floor=1e-12 * scale @ _Y, backend=backend,
+        floor=floor, backend=backend,
     )  # fmt: skip
     hist.write_columns(_ACC, idx, acc, backend)
     hist.write("acc_n", idx, n_new, backend)
@@ -231,6 +257,64 @@ def reuse(
         hist.write_columns(_CTL, idx, control, backend)
     if mode == "multiplicative":
         hist.write_columns(_PROX, idx, np.maximum(proxy, 0.0), backend)
+    return out, n_new
+
+
+def _history_in_place(hist, geom, *_args, mode, **_kwargs) -> bool:
+    """``supports`` of :func:`_reuse_compiled`: the buffers of ``mode`` are float32, stored
+    unscaled, and compiled passes can read and write them in place
+    (:meth:`History.compiled_io`)."""
+    names = _fields(mode)
+    return hist.compiled_io(geom.index, names) and all(hist.scale(n) == 1.0 for n in names)
+
+
+@compiled_side("reuse", supports=_history_in_place)
+def _reuse_compiled(
+    hist, geom, distant, control, alpha, proxy, active, eps, *, mode, min_weight, clamp,
+    tolerance, noise, floor, backend,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`_reuse` in two compiled passes over the pixels that read and store the
+    history's buffers themselves (:func:`core.backends.numba.temporal.reuse_start_history`,
+    ``reuse_finish_history``): the reads, :func:`_step_compiled`'s arithmetic and the
+    writes of :func:`_reuse`, with the pooled noise and the neighbourhood statistics
+    taken per pixel in them (the same float64 operations in the same order: the
+    same values as the ``reuse_step`` twin's compiled side between the reads and writes)."""
+    passes = compiled_module("temporal")
+    p = geom.size
+    f64 = np.float64
+    code = {
+        "plain": passes.PLAIN,
+        "subtractive": passes.SUBTRACTIVE,
+        "multiplicative": passes.MULTIPLICATIVE,
+    }[mode]
+    none3 = np.zeros((0, 3))
+    idx = np.ascontiguousarray(geom.index)
+    table = _neighbour_table(geom)
+    active = np.ascontiguousarray(active, bool)
+    distant = np.ascontiguousarray(distant, f64)
+
+    def flat(names):  # flat views of the buffers: the passes' stores land in them
+        if names[0] not in _fields(mode):
+            return (np.zeros(0, np.float32),) * 3
+        return tuple(hist.buffers[name].reshape(-1) for name in names)
+
+    use_noise = mode != "plain" and noise is not None
+    shift, value = np.empty((p, 3)), np.empty((p, 3))
+    n_cut = np.empty(p)
+    sigma = np.empty(p if use_noise else 0)
+    acc_n = hist.buffers["acc_n"].reshape(-1)
+    passes.reuse_start_history(
+        distant, np.ascontiguousarray(control, f64), np.ascontiguousarray(alpha, f64),
+        none3 if proxy is None else np.ascontiguousarray(proxy, f64), active, idx, acc_n,
+        flat(_CTL), flat(_PROX), np.ascontiguousarray(eps, f64), code, float(SWITCH_WEIGHT),
+        float(tolerance), np.ascontiguousarray(noise, f64) if use_noise else np.zeros(0),
+        table, shift, value, n_cut, sigma,
+    )  # fmt: skip
+    out, n_new = np.empty((p, 3)), np.empty(p)
+    passes.reuse_finish_history(
+        distant, value, shift, n_cut, active, idx, flat(_ACC), acc_n, table, float(clamp),
+        sigma, float(floor), code, float(NOISE_SIGMAS), float(min_weight), out, n_new,
+    )  # fmt: skip
     return out, n_new
 
 

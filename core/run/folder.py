@@ -100,7 +100,7 @@ def run_folder(
     submit : as :class:`core.run.driver.SequenceRun`: write each frame's files while the next is
         read (``cvsss post`` does)
     before_first : called with the first frame to be processed, before it is (the
-        front-ends compile the numba kernels there, saying so); not called when
+        front-ends compile the numba passes there, saying so); not called when
         every frame is done already
 
     Returns

@@ -91,6 +91,50 @@ class _Pixels:
     origin: tuple[int, int]  # (y, x) image coordinates of the frame's pixel (0, 0)
     image: tuple[int, int]  # (H, W) of the whole image
     core: np.ndarray | None  # (P,) bool, pixels whose reads are counted (None: all)
+    #: The compiled vertical pass's layout (:func:`_columns`), made on its first use.
+    columns: _Columns | None = None
+
+
+@dataclass
+class _Columns:
+    """The compiled vertical pass's layout: the image arrays transposed (column-major)
+    and the SSS pixels sorted by slot, then column, then row, so that a block of pixels
+    and its reads run down contiguous memory, as the horizontal pass's run along rows."""
+
+    px: _Pixels  # the pixels in that order; index: flat into the transposed arrays
+    index: np.ndarray  # (P,) int64, flat index into the transposed arrays, row order
+    depth: np.ndarray  # (W·H,) float32, the depth transposed
+    slots: np.ndarray  # (W·H,) int32, the slots transposed
+
+
+def _columns(px: _Pixels, shape: tuple[int, int], depth_flat, slots) -> _Columns:
+    """:class:`_Columns` of the row-order pixels ``px`` of a frame of ``shape`` (H, W),
+    with its (H·W,) depth and slots."""
+    h, w = shape
+    oy, ox = px.origin
+    index = (px.x - ox) * h + (px.y - oy)
+    perm = np.lexsort((px.y, px.x, px.mat))  # stable: the slots' runs stay in place
+    cols = _Pixels(
+        px.order[perm],
+        px.runs,
+        px.lengths,
+        px.slots,
+        index[perm],
+        px.x[perm],
+        px.y[perm],
+        px.mat[perm],
+        px.z[perm],
+        px.inv_fw[perm],
+        px.inv_fh[perm],
+        px.origin,
+        px.image,
+        None if px.core is None else px.core[perm],
+    )
+
+    def transposed(a, dtype):
+        return np.ascontiguousarray(np.asarray(a, dtype).reshape(h, w).T).reshape(-1)
+
+    return _Columns(cols, index, transposed(depth_flat, np.float32), transposed(slots, np.int32))
 
 
 def _pixels(geom: Geometry) -> _Pixels:
@@ -270,6 +314,9 @@ def _compiled_pass(
     jitter_key: int | None,
     depth_slope: float | None,
     linear: bool = False,
+    transposed: bool = False,
+    rows: np.ndarray | None = None,
+    out: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """:func:`_one_pass` as one compiled loop per pixel
     (:func:`core.backends.numba.separable.separable_pass`): the same float32 operations per
@@ -277,18 +324,26 @@ def _compiled_pass(
     ``exp`` comes from another library: within float32 rounding).
 
     Parameters are :func:`_one_pass`'s, but ``src`` is (H·W, C) float32, pixel-major.
+    With ``transposed`` (the vertical pass, ``axis`` 1) ``src``, ``depth_flat`` and
+    ``mat_flat`` are the frame's arrays transposed, and ``px.index`` indexes them
+    (:class:`_Columns`). ``rows`` ((P,) int64) and ``out`` ((N, 3J) float32, zeroed):
+    where each pixel's sums go (default: a new (P, 3J) array, row k for pixel k).
 
     Returns
     -------
-    out : (P, 3J) float32, sorted order (the transpose of _one_pass's)
+    out : (N, 3J) float32 (the default: sorted order, the transpose of _one_pass's)
     fallback : as _one_pass
     """
     separable_pass = compiled_module("separable").separable_pass
     coord, base, stride, size, scale, first, span = _axis(px, shape, axis)
+    if transposed:  # a column of the frame is a run of the transposed arrays
+        base, stride = (px.x - px.origin[1]) * shape[0], 1
     present = np.zeros(tab.width.shape[0], bool)
     present[px.slots] = True
     p_count = px.index.size
-    out = np.zeros((p_count, weights.shape[2]), np.float32)
+    if out is None:
+        out = np.zeros((p_count, weights.shape[2]), np.float32)
+        rows = np.arange(p_count)
     core = np.ones(p_count, bool) if px.core is None else np.ascontiguousarray(px.core, bool)
     # One RGB group per call: the horizontal pass's one read feeds all J terms (c0 = 0,
     # R = J); the vertical pass reads term t's group and writes it (c0 = 3t, R = 1),
@@ -322,6 +377,7 @@ def _compiled_pass(
         -1.0 if depth_slope is None else float(depth_slope),
         (-tab.inv2tau).astype(np.float32),
         bool(linear),
+        np.ascontiguousarray(rows, i64),
         out,
     )
     # One build per follow rule (core.backends.numba.separable.separable_pass).
@@ -394,15 +450,11 @@ def apply(
     t0 = time.perf_counter()
     slope = depth_slope if params.follow == "slope" else None
     linear = params.filter == "linear"
-    second, fallback = _two_passes(
+    shaded, fallback = _two_passes(
         frame.lighting, frame.depth, geom.slots, px, geom.shape, tab, j, key, slope, linear,
         backend=backend,
     )  # fmt: skip
     sampling_ms = (time.perf_counter() - t0) * 1e3
-    shaded = np.empty((geom.size, 3))
-    shaded[px.order] = second.reshape(j, 3, -1).sum(axis=0, dtype=np.float64).T
-    big = float(np.finfo(np.float32).max)
-    shaded = np.clip(np.nan_to_num(shaded, nan=0.0, posinf=big), 0.0, big)
     per_read = 2 if linear else 1
     counted = geom.size if geom.core is None else int(np.count_nonzero(geom.core))
     tap_reads = 2 * per_read * (params.taps - 1) * counted
@@ -417,6 +469,16 @@ def apply(
             "tap_reads": tap_reads,
         },
     )
+
+
+_BIG = float(np.finfo(np.float32).max)
+
+
+def _finish(terms: np.ndarray, j: int) -> np.ndarray:
+    """(P, 3) float64 C-contiguous: the (3J, P) float32 ``terms`` summed over the J terms
+    in float64, NaN as 0, clipped to [0, float32 max]."""
+    summed = terms.reshape(j, 3, -1).sum(axis=0, dtype=np.float64)
+    return np.ascontiguousarray(np.clip(np.nan_to_num(summed.T, nan=0.0, posinf=_BIG), 0.0, _BIG))
 
 
 @numpy_side("separable_pass")
@@ -446,7 +508,8 @@ def _two_passes(
 
     Returns
     -------
-    second : (3J, P) float32, the vertical pass's output in sorted order
+    shaded : (P, 3) float64, L per SSS pixel in the Geometry's order: the vertical
+        pass's terms summed (:func:`_finish`), ≥ 0
     fallback : int, zero-weight reads of both passes
     """
     hgt, wid = shape
@@ -457,7 +520,9 @@ def _two_passes(
     inter[:, px.index] = first
     vkey = None if key is None else key + 1
     second, fb2 = _one_pass(inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear)
-    return second, fb1 + fb2
+    unsorted = np.empty_like(second)
+    unsorted[:, px.order] = second
+    return _finish(unsorted, terms), fb1 + fb2
 
 
 @compiled_side("separable_pass")
@@ -465,17 +530,32 @@ def _two_passes_compiled(
     lighting, depth, slots, px, shape, tab, terms, key, slope, linear, backend="numpy"
 ) -> tuple[np.ndarray, int]:
     """:func:`_two_passes` with :func:`_compiled_pass`, on pixel-major images (a read's
-    channels share a cache line): the same values."""
+    channels share a cache line), the vertical pass on transposed ones (its reads then
+    run along memory, :class:`_Columns`): the same values. The horizontal pass writes
+    its sums into the vertical pass's (transposed) image, the vertical pass into the
+    Geometry's pixel order: no gathers or scatters between them; a single term is
+    finished (:func:`_finish`) by a compiled pass.
+
+    ``px.columns`` is made from ``depth`` and ``slots`` on the first call with ``px``
+    (the pixels of a Geometry, whose later frames have the same depth and slots).
+    """
     hgt, wid = shape
     light = np.ascontiguousarray(lighting.reshape(-1, 3), dtype=np.float32)
-    depth_flat = depth.reshape(-1).astype(np.float32)
-    first, fb1 = _compiled_pass(
-        light, px, shape, depth_flat, slots, tab, tab.h, 0, key, slope, linear
-    )
-    inter = np.zeros((hgt * wid, 3 * terms), np.float32)
-    inter[px.index] = first
+    depth_flat = np.ascontiguousarray(depth.reshape(-1), dtype=np.float32)
+    if px.columns is None:
+        px.columns = _columns(px, shape, depth_flat, slots)
+    cols = px.columns
+    inter = np.zeros((wid * hgt, 3 * terms), np.float32)
+    _, fb1 = _compiled_pass(
+        light, px, shape, depth_flat, slots, tab, tab.h, 0, key, slope, linear,
+        rows=cols.index, out=inter,
+    )  # fmt: skip
     vkey = None if key is None else key + 1
-    second, fb2 = _compiled_pass(
-        inter, px, shape, depth_flat, slots, tab, tab.v, 1, vkey, slope, linear
-    )
-    return second.T, fb1 + fb2
+    second = np.zeros((px.index.size, 3 * terms), np.float32)
+    _, fb2 = _compiled_pass(
+        inter, cols.px, shape, cols.depth, cols.slots, tab, tab.v, 1, vkey, slope, linear,
+        transposed=True, rows=cols.px.order, out=second,
+    )  # fmt: skip
+    if terms == 1:  # one term: _finish's conversion, NaN test and clip in one pass
+        return compiled_module("separable").finish_single(second), fb1 + fb2
+    return _finish(second.T, terms), fb1 + fb2

@@ -1,7 +1,7 @@
 """The first F12 with Apply on Render on a fresh install, against a plain F12.
 
 For each extension zip given (``make extension``'s Linux x64 zip, with or without the
-numba kernels it ships), in a fresh process with an empty Blender user folder and an
+numba passes it ships), in a fresh process with an empty Blender user folder and an
 empty per-user cache (as a machine that never ran the add-on): installs the zip as
 Blender's *Install from Disk* does, builds the flash demo scene, then times
 ``bpy.ops.render.render()`` (F12, a still shown, not written) in this order:
@@ -166,7 +166,7 @@ def _session(path: Path, work: Path, a, again: bool) -> None:
     r = json.loads(line[0].removeprefix("REPORT "))
     plain = statistics.median(t for n, t, _ in r["times"][3:] + r["times"][1:2] if n == "plain")
     first, second = r["times"][2][1], r["times"][3][1]
-    said = [x for x in run.stdout.splitlines() if "numba kernels" in x]
+    said = [x for x in run.stdout.splitlines() if "numba passes" in x]
     print(
         f"  {path.name}{' (restarted)' if again else ''}: "
         + ", ".join(f"{n} {t:.2f}" for n, t, _ in r["times"])

@@ -1,4 +1,4 @@
-"""The first render on a machine: the numba kernels compiled in the background while Blender
+"""The first render on a machine: the numba passes compiled in the background while Blender
 renders, before the first post-process, or inside it.
 
 Renders the flash demo scene (``demo_blend``) through ``render_sequence`` (what
@@ -89,7 +89,7 @@ def child(
     )
     wall = time.perf_counter() - began
     first = next(t for t, text in lines if " as_ccv:" in text)
-    compiled = [text for _, text in lines if "numba kernels" in text]
+    compiled = [text for _, text in lines if "numba passes" in text]
     print("REPORT " + json.dumps({"wall": wall, "first": first, "compiled": compiled}))
 
 

@@ -10,7 +10,8 @@ frame's passes (ms, both directions, all terms). Run from the repo root:
     .venv/bin/python docs/checks/separable_pass.py [WxH] [CALLS]
 
 To compare with another revision, run it with that revision's worktree first on
-the import path (as ``steady_frame.py`` explains), alternately with this one.
+the import path (as ``steady_frame.py`` explains), alternately with this one
+(revisions before the backends floor kept the passes in ``core.mc.estimator_numba``).
 """
 
 import argparse

@@ -127,7 +127,7 @@ class Job:
     #: farm); they are read, never rendered, and a missing one is an error.
     render_passes: bool = True
     #: False: the frames are processed elsewhere (tiles on a cluster), so this process
-    #: does not compile the numba kernels (:mod:`.precompile`).
+    #: does not compile the numba passes (:mod:`.precompile`).
     processed_here: bool = True
     #: Whether the opened .blend's Python drivers and registered scripts run (True,
     #: False: ``wm.open_mainfile(use_scripts=…)``, Blender's -y / -Y), or None: as
@@ -631,7 +631,7 @@ def iter_sequence(job: Job, run: SequenceRun | None = None) -> Iterator[Step]:
         if first is not None:
             check_passes(job, first)
     if _renders_first(job, run):
-        # A process of its own compiles the numba kernels while Blender renders (when
+        # A process of its own compiles the numba passes while Blender renders (when
         # they are not cached yet); the first post-process waits for it.
         precompile.start_background(
             job.params.backend, run.spec.order, job.log, math.prod(output_size(job.scene))

@@ -523,6 +523,12 @@ def format_summary(result: dict) -> str:
         for size, rows in frames.get(b, {}).items():
             text = ", ".join(f"{m} {ms:.0f}" for m, ms in rows.items())
             lines.append(f"frame ms {b} {size}: {text}")
+    steady = frames.get("steady") or {}
+    for m, row in steady.get("methods", {}).items():
+        lines.append(
+            f"steady frame s {steady['backend']} {steady['size']} {m}: {row['median_s']:.3f} "
+            f"(min {row['min_s']:.3f}, max {row['max_s']:.3f}, {len(row['runs_s'])} frames)"
+        )
     jit = result.get("jit") or {}
     if "compile_s" in jit:
         lines.append(

@@ -5,7 +5,7 @@ scene.blend -a`` through the ``bpy`` module): BLENDER_USER_RESOURCES must be
 set before bpy is imported, and the installed add-on must not meet the
 ``cvsss`` package the other tests register. Prints Blender's and the add-on's
 output, then one line ``REPORT <json>``. With ``CVSSS_BACKGROUND_COMPILE=1`` the
-report also tells how the numba kernels were prepared (see
+report also tells how the numba passes were prepared (see
 ``background_report``).
 
 Usage: python apply_on_render_check.py <zip> <work folder> <scene.blend>

@@ -615,10 +615,9 @@ def test_installed_extension_compiles_the_kernels_beside_blenders_render(
     # post-process waited for it, then loaded.
     lines = [ln.removeprefix("cvsss: ") for ln in stdout.splitlines() if ln.startswith("cvsss:")]
     assert (
-        lines[1]
-        == "compiling the numba kernels in a background process (first use on this machine)"
+        lines[1] == "compiling the numba passes in a background process (first use on this machine)"
     )
-    assert lines[-3].startswith("the numba kernels were compiled in the background in "), lines
+    assert lines[-3].startswith("the numba passes were compiled in the background in "), lines
     assert lines[-2].startswith("frame 1 as_ocv:"), lines
     assert Path(tmp_path / "farm" / "f_0001.png").is_file()
 

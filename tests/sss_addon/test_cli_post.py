@@ -210,8 +210,8 @@ def test_post_prepares_the_kernels_before_the_first_frame(
     lines = capsys.readouterr().out.splitlines()
     assert calls == [(27 * 48, "cvsss-compile")]
     first = next(i for i, line in enumerate(lines) if line.startswith("frame 1/"))
-    assert lines[first - 2].startswith("compiling the numba kernels (first use")
-    assert lines[first - 1].startswith("compiled the numba kernels in 0.")
+    assert lines[first - 2].startswith("compiling the numba passes (first use")
+    assert lines[first - 1].startswith("compiled the numba passes in 0.")
     no_compile.clear()
     assert cli.main([*argv, "--backend", "numba", "--resume"]) == 0
     assert calls == [(27 * 48, "cvsss-compile")]  # all done: not prepared again

@@ -1,4 +1,4 @@
-"""sss_addon.precompile: the numba kernels compiled before the first frame is
+"""sss_addon.precompile: the numba passes compiled before the first frame is
 processed, on a thread the caller waits for, and said out loud when that takes long.
 
 The compile is stood in for by a timed sleep where the test is about timing and
@@ -17,10 +17,10 @@ import pytest
 from cvsss.core.backends import cache as numba_cache
 from cvsss.sss_addon import precompile
 
-ANNOUNCE = "compiling the numba kernels (first use on this machine, about a minute)…"
+ANNOUNCE = "compiling the numba passes (first use on this machine, about a minute)…"
 MC = ("none", "as_ccv")  # a job with one method that samples
-STARTED = "compiling the numba kernels in a background process (first use on this machine)"
-REPORT = re.compile(r"compiled the numba kernels in ([\d.]+) s; later runs load them from (.+)$")
+STARTED = "compiling the numba passes in a background process (first use on this machine)"
+REPORT = re.compile(r"compiled the numba passes in ([\d.]+) s; later runs load them from (.+)$")
 
 
 def test_numpy_compiles_nothing(no_compile, slow_compile):
@@ -73,7 +73,7 @@ def test_a_failed_compile_is_logged(no_compile, slow_compile):
     slow_compile(0.0, RuntimeError("no LLVM here"))
     lines = []
     precompile.ensure_compiled("numba", MC, None, lines.append)
-    assert lines == ["compiling the numba kernels failed: RuntimeError: no LLVM here"]
+    assert lines == ["compiling the numba passes failed: RuntimeError: no LLVM here"]
     assert precompile.compiled_ready("numba", MC)  # not again: the frame's own call raises it
 
 
@@ -98,7 +98,7 @@ def test_real_kernels_are_compiled(no_compile, monkeypatch):
 
 
 # -- the background compile (a process of its own) ------------------------------------
-# The real compile_kernels.py runs in tests/blender/test_apply_on_render.py (it compiles
+# The real compile_passes.py runs in tests/blender/test_apply_on_render.py (it compiles
 # into an empty cache while Blender renders); here stand-in scripts play the child, so that each
 # way it can end is seen in a second.
 def _child(tmp_path, monkeypatch, body: str):
@@ -179,8 +179,8 @@ def test_ensure_compiled_waits_for_the_background_compile_then_loads(
     assert seen == [True]  # after the child ended
     assert lines == [
         STARTED,
-        "waiting for the numba kernels' compile in the background (first use)…",
-        "the numba kernels were compiled in the background in 41.5 s",
+        "waiting for the numba passes' compile in the background (first use)…",
+        "the numba passes were compiled in the background in 41.5 s",
     ]
 
 
@@ -203,7 +203,7 @@ def test_a_failed_background_compile_is_reported_and_compiled_here(
     assert precompile.start_background("numba", MC)
     precompile.ensure_compiled("numba", MC, 64, lines.append)
     assert lines == [
-        f"the background compile of the numba kernels failed ({why}); compiling them here"
+        f"the background compile of the numba passes failed ({why}); compiling them here"
     ]
     assert calls == [(64, "cvsss-compile")]
 
@@ -237,7 +237,7 @@ def test_ensure_compiled_waits_only_for_the_kernels_of_its_frame_size(
     precompile.ensure_compiled("numba", MC, 640 * 360, lines.append)
     assert time.perf_counter() - began < 30
     assert precompile._background["process"].poll() is None  # still compiling the rest
-    assert lines == ["the numba kernels were compiled in the background in 30.5 s"]
+    assert lines == ["the numba passes were compiled in the background in 30.5 s"]
 
 
 def test_a_background_compile_that_cannot_start_leaves_the_job_to_compile(

@@ -12,7 +12,7 @@ runs it, PNG output:
 
 Rounds interleave the four renders (plain and Apply on Render, animation and
 still) so that the machine's drift hits both; the first round is not timed
-(it compiles the numba kernels and loads OpenImageDenoise). It prints the
+(it compiles the numba passes and loads OpenImageDenoise). It prints the
 medians, their ratio and where Apply on Render's time went (the add-on's
 steps; the rest is Blender's pass render). From the repository root::
 

@@ -9,21 +9,30 @@ import numpy as np
 
 from ...sampling.qmc import DIRECTIONS
 from .adaptive import spvg_counts, spvg_update
-from .history import _history_pass, fetch, read_column, reproject_map, write_column
-from .image import _composite_pass, _float_image_pass
+from .history import _history_pass, read_column, reproject, write_column
+from .image import _composite_pass, _float_image_pass, row_sums
 from .region import _region
 from .sampling import (
     PLANAR,
     build_for,
+    estimate_variance,
     pixel_sums,
     pixel_sums_serial,
     relight,
     texels,
     tile_order,
 )
-from .separable import separable_pass_exp, separable_pass_slope
+from .separable import finish_single, separable_pass_exp, separable_pass_slope
 from .surface import surface_arrays
-from .temporal import MULTIPLICATIVE, neighbour_table, neighbourhood_pass, reuse_finish, reuse_start
+from .temporal import (
+    MULTIPLICATIVE,
+    neighbour_table,
+    neighbourhood_pass,
+    reuse_finish,
+    reuse_finish_history,
+    reuse_start,
+    reuse_start_history,
+)
 
 
 def compile_all(pixels: int | None = None) -> None:
@@ -31,7 +40,7 @@ def compile_all(pixels: int | None = None) -> None:
 
     With ``pixels`` (the frame's, H·W) only the build of the sampling pass that
     frames of that size take (:func:`build_for`, counting every pixel as an SSS pixel
-    with no samples); the other kernels all the same. The two builds of the sampling
+    with no samples); the other passes all the same. The two builds of the sampling
     pass are most of a cold compile's time (docs/performance.md).
     """
     builds = (pixel_sums, pixel_sums_serial)
@@ -46,6 +55,7 @@ def compile_all(pixels: int | None = None) -> None:
         np.zeros(1, np.int32), True,
     )  # fmt: skip
     relight(np.ones((1, 3), f32), texel)
+    estimate_variance(np.ones((1, 2)), np.zeros(1, np.int64), np.ones(1, np.int64), np.ones(1))
     depth = np.full((2, 2), 2.0, np.float32)
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
         surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
@@ -64,11 +74,13 @@ def compile_all(pixels: int | None = None) -> None:
     rows, at = np.ones((1, 3), np.float32), np.zeros(1, np.int64)
     _composite_pass(rows, rows, rows, at, np.ones((1, 3)), one, True, 1.0, rows.copy(), rows.copy())
     _float_image_pass(np.ones((1, 3)), at, 0.0, 1.0, rows.copy())
-    plane = np.ones((1, 1), np.float32)
-    for motion in (None, np.zeros((1, 1, 2), np.float32)):
-        reproject_map(motion, plane, at.reshape(1, 1), plane, at.reshape(1, 1), 0.1)
-    for dtype in (np.float16, np.float32, np.bool_):  # history buffers and masks
-        fetch(np.zeros(1, dtype), at, yes)
+    row_sums(np.ones((1, 3)))
+    plane, mask = np.ones((1, 1), np.float32), np.ones((1, 1), np.bool_)
+    for dtype in (np.float16, np.float32):  # the history's storage
+        for slots in (np.int32, np.int64):  # a Frame's slots, or wider ones
+            key = np.zeros((1, 1), slots)
+            block = np.zeros((2, 1, 1), dtype)
+            reproject(None, plane, key, plane, key, 0.1, block, np.ones(2, bool), mask, mask)
     read_column(one32, at, 1.0, g3, 0)
     write_column(g3, 0, at, 1.0, one32.copy())
     # The separable passes (the separable method, the temporal proxy) and the temporal
@@ -79,9 +91,10 @@ def compile_all(pixels: int | None = None) -> None:
     for build in (separable_pass_slope, separable_pass_exp):
         build(
             np.ones((1, 3), f32), 0, 1, *pix, yes, *tables, np.zeros(3, np.bool_),
-            np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True,
+            np.ones((2, 3, 3), f32), 1, 1, 0, 1, -1, 2.0, np.ones(2, f32), True, at,
             np.zeros((1, 3), f32),
         )  # fmt: skip
+    finish_single(np.ones((1, 3), f32))
     table = neighbour_table(at, np.ones(1, np.int32), at, 1, 1)
     neighbourhood_pass(g3, yes, table, g3.copy(), g3.copy())
     rgb = [np.ones((1, 3)) for _ in range(8)]
@@ -89,6 +102,12 @@ def compile_all(pixels: int | None = None) -> None:
                 *rgb[5:7], one.copy())  # fmt: skip
     reuse_finish(*rgb[:4], one, yes, *rgb[4:6], 2.0, one, 1e-12, MULTIPLICATIVE, True, 2.0, 0.1,
                  *rgb[6:8], one.copy())  # fmt: skip
+    # The same on a float32 history's buffers (core.mc.temporal._reuse_compiled).
+    bufs = tuple(one32.copy() for _ in range(3))
+    reuse_start_history(*rgb[:2], one, rgb[2], yes, at, one32.copy(), bufs, bufs, np.ones(3),
+                        MULTIPLICATIVE, 0.2, 0.3, one, table, *rgb[3:5], one.copy(), one.copy())  # fmt: skip
+    reuse_finish_history(*rgb[:3], one, yes, at, bufs, one32.copy(), table, 2.0, one, 1e-12,
+                         MULTIPLICATIVE, 2.0, 0.1, rgb[5], one.copy())  # fmt: skip
 
 
 def _compile_sampling(fn) -> None:

@@ -201,44 +201,64 @@ def _history_pass(
 _BITS = {1: np.uint8, 2: np.uint16, 4: np.uint32, 8: np.uint64}
 
 
-def reproject_map(motion, depth, material, prev_depth, prev_material, tolerance):
-    """Source pixel, on-screen flag and surface match of every pixel, one parallel pass.
+#: Pixels per parallel task of the reprojection: the task's source map is kept for its
+#: buffers, each copied as one run (a few streams at a time, not one per buffer).
+_REPROJECT_TASK = 4096
 
-    :meth:`core.mc.history.History.reproject`'s arithmetic (float64 positions,
-    ``rint`` of the clipped position, the relative depth test) per pixel.
+
+def reproject(
+    motion, depth, material, prev_depth, prev_material, tolerance, block, reset, valid, cv_valid
+):
+    """The reprojected history in one parallel pass: each pixel's source, on-screen flag
+    and surface match, then the buffers and masks fetched from the source.
+
+    :meth:`core.mc.history.History.reproject`'s arithmetic (float64 positions, ``rint``
+    of the clipped position, the relative depth test) per pixel; a fetched value is the
+    source's bits where kept, zero elsewhere.
 
     Parameters
     ----------
     motion : (H, W, 2) float32 or None (static)
     depth, prev_depth : (H, W) float32; material, prev_material : (H, W) int
     tolerance : float, relative depth change still accepted
+    block : (F, H, W) float16 or float32, the history's buffers, one per row
+    reset : (F,) bool, the buffer is kept only where the surface is the same (else
+        wherever the source is on screen)
+    valid, cv_valid : (H, W) bool, kept where the surface is the same
 
     Returns
     -------
-    src : (H·W,) int64, flat source pixel (0 off screen)
-    inside, same : (H·W,) bool, on screen; and the same slot at a close depth
+    block : (F, H, W), valid, cv_valid : (H, W) bool, new arrays
     """
     h, w = depth.shape
     n = h * w
-    src = np.empty(n, np.int64)
-    inside = np.empty(n, np.bool_)
-    same = np.empty(n, np.bool_)
     flow = np.zeros((0, 2), np.float32) if motion is None else motion.reshape(n, 2)
+    # Slots compared as int32 where both are (a Frame's and a History's are), else int64.
+    narrow = material.dtype == np.int32 and prev_material.dtype == np.int32
+    slots = np.int32 if narrow else np.int64
+    bits = _BITS[block.dtype.itemsize]
+    out = np.empty(block.shape, block.dtype)
+    valid_out = np.empty((h, w), np.bool_)
+    cv_out = np.empty((h, w), np.bool_)
     _reproject_pass(
         np.ascontiguousarray(flow),
         motion is not None,
         h,
         w,
         np.ascontiguousarray(depth).reshape(-1),
-        np.ascontiguousarray(material, np.int64).reshape(-1),
+        np.ascontiguousarray(material, slots).reshape(-1),
         np.ascontiguousarray(prev_depth).reshape(-1),
-        np.ascontiguousarray(prev_material, np.int64).reshape(-1),
+        np.ascontiguousarray(prev_material, slots).reshape(-1),
         float(tolerance),
-        src,
-        inside,
-        same,
+        np.ascontiguousarray(block).reshape(block.shape[0], n).view(bits),
+        np.ascontiguousarray(reset, np.bool_),
+        np.ascontiguousarray(valid).reshape(-1),
+        np.ascontiguousarray(cv_valid).reshape(-1),
+        out.reshape(block.shape[0], n).view(bits),
+        valid_out.reshape(-1),
+        cv_out.reshape(-1),
     )
-    return src, inside, same
+    return out, valid_out, cv_out
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -261,31 +281,35 @@ def _source(i, flow, has_motion, w, h):
 
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _reproject_pass(
-    flow, has_motion, h, w, depth, material, prev_depth, prev_material, tol, src, inside, same
-):
-    for i in numba.prange(depth.shape[0]):
-        s, ok = _source(i, flow, has_motion, w, h)
-        prev = np.float64(prev_depth[s])
-        cur = np.float64(depth[i])
-        src[i] = s
-        inside[i] = ok
-        same[i] = ok and prev_material[s] == material[i] and abs(prev - cur) <= tol * cur
-
-
-def fetch(values: np.ndarray, src: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """``values.flat[src]`` where ``keep``, zero elsewhere, in ``values``' shape and
-    dtype (bits copied: float16, float32 or bool), one parallel pass."""
-    values = np.ascontiguousarray(values)
-    bits = _BITS[values.dtype.itemsize]
-    out = np.empty(values.shape, values.dtype)
-    _fetch_pass(values.reshape(-1).view(bits), src, keep, out.reshape(-1).view(bits))
-    return out
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _fetch_pass(values, src, keep, out):
-    for i in numba.prange(out.shape[0]):
-        out[i] = values[src[i]] if keep[i] else 0
+    flow, has_motion, h, w, depth, material, prev_depth, prev_material, tol, block, reset,
+    valid, cv_valid, out, valid_out, cv_out,
+):  # fmt: skip
+    n = depth.shape[0]
+    n_tasks = (n + _REPROJECT_TASK - 1) // _REPROJECT_TASK
+    for t in numba.prange(n_tasks):
+        start = t * _REPROJECT_TASK
+        end = min(n, start + _REPROJECT_TASK)
+        src = np.empty(end - start, np.int64)
+        inside = np.empty(end - start, np.bool_)
+        same = np.empty(end - start, np.bool_)
+        for i in range(start, end):
+            s, ok = _source(i, flow, has_motion, w, h)
+            prev = np.float64(prev_depth[s])
+            cur = np.float64(depth[i])
+            match = ok and prev_material[s] == material[i] and abs(prev - cur) <= tol * cur
+            src[i - start] = s
+            inside[i - start] = ok
+            same[i - start] = match
+            valid_out[i] = valid[s] if match else False
+            cv_out[i] = cv_valid[s] if match else False
+        for f in range(block.shape[0]):
+            keep = same if reset[f] else inside
+            if has_motion:
+                for i in range(start, end):
+                    out[f, i] = block[f, src[i - start]] if keep[i - start] else 0
+            else:  # each pixel its own source: a masked copy, vectorised
+                for i in range(start, end):
+                    out[f, i] = block[f, i] if keep[i - start] else 0
 
 
 # -- the history's reads and writes (core.mc.history.History.read_columns) -------------

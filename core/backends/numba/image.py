@@ -1,6 +1,7 @@
-"""The composite and the per-pixel float maps as compiled passes (the numba sides of
-the ``composite`` and ``float_image`` twins, :mod:`core.result` and
-:meth:`core.geometry.Geometry.to_image`).
+"""The composite, the per-pixel float maps and the rows' mean as compiled passes (the
+numba sides of the ``composite``, ``float_image`` and ``row_mean`` twins,
+:mod:`core.result`, :meth:`core.geometry.Geometry.to_image` and
+:func:`core.geometry.row_mean`).
 """
 
 from __future__ import annotations
@@ -101,3 +102,19 @@ def _float_image_pass(rows, index, fill, big, out):
         for c in range(channels):
             x = rows[k, c]
             out[i, c] = np.float32(x if np.isnan(x) else min(max(x, -big), big))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def row_sums(rows):
+    """(3,) float64: the sums of the (P, 3) float64 ``rows`` over P, row after row (the
+    order NumPy's sum along the first axis of a C-contiguous array takes; serial)."""
+    s0 = s1 = s2 = 0.0
+    for k in range(rows.shape[0]):
+        s0 += rows[k, 0]
+        s1 += rows[k, 1]
+        s2 += rows[k, 2]
+    out = np.empty(3)
+    out[0] = s0
+    out[1] = s1
+    out[2] = s2
+    return out

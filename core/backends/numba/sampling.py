@@ -883,3 +883,38 @@ def build_for(samples: int, pixels: int = 0):
     """
     work = samples + PIXEL_SAMPLES * pixels
     return pixel_sums if work >= PARALLEL_MIN_SAMPLES else pixel_sums_serial
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def estimate_variance(var_sums, active, counts, gamma_sum):
+    """core.mc.estimator.estimate_variance in one parallel pass, its float64 operations
+    per pixel (np.maximum's rule: NaN stays NaN).
+
+    Parameters
+    ----------
+    var_sums : (A, 2) float64; active : (A,) int64, ascending; counts : (P,) int64;
+    gamma_sum : (P,) float64
+
+    Returns
+    -------
+    (P,) float64
+    """
+    n = counts.shape[0]
+    # Each pixel's row of var_sums (−1: not active, sums 0).
+    row = np.full(n, -1, np.int64)
+    for i in numba.prange(active.shape[0]):
+        row[active[i]] = i
+    out = np.empty(n)
+    for k in numba.prange(n):
+        r = row[k]
+        v0 = var_sums[r, 0] if r >= 0 else 0.0
+        v1 = var_sums[r, 1] if r >= 0 else 0.0
+        m = np.float64(counts[k])
+        s2 = (v1 - v0 * v0 / m) / (m - 1.0)
+        if m > 1:
+            top = s2 if (np.isnan(s2) or s2 >= 0.0) else 0.0
+            v = top / m
+        else:
+            v = np.inf
+        out[k] = 0.0 if (m == 0 or gamma_sum[k] == 0) else v
+    return out

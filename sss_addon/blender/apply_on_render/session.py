@@ -232,7 +232,7 @@ class Session:
         )
         if skipped is not None:
             log(skipped)
-        # The numba kernels compile in a process of their own while Blender renders, when
+        # The numba passes compile in a process of their own while Blender renders, when
         # they are not cached yet (the add-on's registration in the UI started it already).
         precompile.start_background(
             self.job.params.backend, self.job.methods, log, math.prod(output_size(scene))

@@ -89,7 +89,7 @@ def build(tmp_path_factory):
     assert built["misses"] == 2 and built["hits"] == 0
     (folder,) = (p for p in cache.iterdir() if p.is_dir())
     out = tmp / "shipped" / "generic"
-    manifest = shipped._write(folder, out, ROOT, "generic", ())
+    manifest = shipped.write_build(folder, out, ROOT, "generic", ())
     return out, manifest
 
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from cvsss.core.camera import Camera
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc.history import H_FIELDS, J_FIELDS, History
+from cvsss.core.mc.history import H_FIELDS, J_FIELDS, T_FIELDS, History
 from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.profiles.burley import BurleyProfile
 from cvsss.core.profiles.factory import frame_profile
@@ -201,6 +201,56 @@ def float_image_cases() -> list[Case]:
 
         cases.append(Case(name, build, check))
     return cases
+
+
+def row_mean_cases() -> list[Case]:
+    def make(name, size, special):
+        def build(backend):
+            rng = np.random.default_rng(size)
+            rows = rng.lognormal(0, 3, (size, 3))  # a wide range: the order of the sum shows
+            rows[::7, 1] *= -1.0
+            if special:
+                rows[5, 0], rows[9, 2] = np.inf, np.nan
+            return (rows,), {"backend": backend}
+
+        def check(a, b, *_):
+            assert a.shape == b.shape == (3,)
+            same_bits(a, b, name)
+            assert np.isnan(a[2]) if special else np.isfinite(a).all()
+
+        return Case(name, build, check)
+
+    return [
+        make("one-row", 1, False),
+        make("1080p-rows", 915_076, False),
+        make("inf-nan", 64, True),
+    ]
+
+
+def estimate_variance_cases() -> list[Case]:
+    def make(name, size):
+        def build(backend):
+            rng = np.random.default_rng(size)
+            counts = rng.integers(0, 6, size)
+            gamma_sum = rng.random(size) * (rng.random(size) < 0.9)  # some without γ
+            active = np.flatnonzero((counts > 0) & (gamma_sum > 0))
+            y = rng.lognormal(0, 2, (active.size, 4))
+            sums = np.stack([y[:, 0] * counts[active], y[:, 1] * counts[active] + y[:, 2]], 1)
+            sums[::13, 1] = sums[::13, 0] ** 2 / counts[active][::13]  # exactly no spread
+            sums[::17, 1] = 0.0  # a negative spread: clipped to 0
+            sums[::19, 0] = np.nan
+            return (sums, active, counts, gamma_sum), {"backend": backend}
+
+        def check(a, b, args_a, _):
+            counts = args_a[0][2]
+            assert a.dtype == b.dtype == np.float64 and a.shape == counts.shape
+            same_bits(a, b, name)
+            assert (a == 0).any() and np.isinf(a).any() and np.isnan(a).any()
+            assert (a[np.isfinite(a)] >= 0).all()
+
+        return Case(name, build, check)
+
+    return [make("small", 200), make("1080p", 915_076)]
 
 
 def burley_region_cases() -> list[Case]:
@@ -402,7 +452,7 @@ def history_read_cases() -> list[Case]:
 
 
 def reproject_cases() -> list[Case]:
-    def make(precision, moving):
+    def make(precision, moving, separate=False):
         def build(backend):
             rng = np.random.default_rng(11)
             shape = (23, 37)
@@ -414,6 +464,8 @@ def reproject_cases() -> list[Case]:
             hist.material[...] = rng.integers(0, 3, shape)
             hist.depth[...] = rng.uniform(1, 2, shape)
             hist.depth[0] = np.inf
+            if separate:  # buffers of their own, not the rows of one array (History.empty's)
+                hist.buffers = {k: v.copy() for k, v in hist.buffers.items()}
             depth = (hist.depth * rng.choice([1.0, 1.05, 1.2], shape)).astype(np.float32)
             depth[:, 0] = np.inf
             material = np.where(rng.random(shape) < 0.9, hist.material, 2).astype(np.int32)
@@ -435,9 +487,11 @@ def reproject_cases() -> list[Case]:
             # reset where the surface is not the same
             assert (a.buffers["acc_n"] == 0).sum() > (a.buffers["mu"] == 0).sum()
 
-        return Case(f"{precision}-{'moving' if moving else 'still'}", build, check)
+        label = f"{precision}-{'moving' if moving else 'still'}{'-separate' if separate else ''}"
+        return Case(label, build, check)
 
-    return [make(p, m) for p in ("float16", "float32") for m in (True, False)]
+    cases = [make(p, m) for p in ("float16", "float32") for m in (True, False)]
+    return [*cases, make("float32", True, separate=True)]
 
 
 # -- the temporal reuse --------------------------------------------------------------------
@@ -508,6 +562,83 @@ def reuse_step_cases() -> list[Case]:
                 scale = float(np.abs(x[ok]).max(initial=0.0))
                 np.testing.assert_allclose(y[ok], x[ok], rtol=1e-13, atol=1e-13 * scale)
             assert (a[2] > 1).any() and (a[2] == 0).any()
+
+        return Case(f"{mode}-{'clamp' if np.isfinite(clamp) else 'no-clamp'}-"
+                    f"{'noise' if noisy else 'no-noise'}", build, check)  # fmt: skip
+
+    return [
+        make(mode, clamp, noisy)
+        for mode in ("plain", "subtractive", "multiplicative")
+        for clamp in (2.0, np.inf)
+        for noisy in (True, False)
+    ]
+
+
+def reuse_cases() -> list[Case]:
+    """The whole reuse step on a float32 history: what the NumPy side reads, computes and
+    stores against the compiled passes that read and store the buffers themselves."""
+    frame = surface_frames()["perspective"]
+    geom = geometry_of(frame, frame_profile(frame, SSSParams()))
+
+    def make(mode, clamp, noisy):
+        def build(backend):
+            rng = np.random.default_rng(2)
+            p = geom.size
+            hist = History.empty(geom.shape, temporal=True, cv=False)
+            idx = geom.index
+            for name in T_FIELDS:
+                hist.buffers[name].reshape(-1)[idx] = rng.lognormal(0, 1, p)
+            hist.buffers["acc_n"].reshape(-1)[idx] = rng.integers(0, 30, p)
+            hist.buffers["prox_g"].reshape(-1)[idx[::17]] = -1.0  # a negative proxy
+            hist.buffers["acc_b"].reshape(-1)[idx[::19]] = np.nan  # stays NaN: stored as 0
+            distant, control = rng.lognormal(0, 1, (2, p, 3))
+            proxy = rng.normal(1, 1, (p, 3))
+            distant[::37, 1] = np.nan
+            control[::41, 0] = 0.0  # a black control
+            control[::47, 2] = 1e300  # stored as float32's largest
+            proxy[::43, 2] = np.inf
+            noise = rng.lognormal(-1, 1, p)
+            noise[::29] = np.nan
+            noise[::31] = np.inf
+            args = (
+                hist, geom, distant, control, rng.random(p),
+                proxy if mode == "multiplicative" else None, rng.random(p) < 0.85,
+                1e-3 * np.ones(3),
+            )  # fmt: skip
+            kwargs = dict(
+                mode=mode, min_weight=0.1, clamp=clamp, tolerance=0.3,
+                noise=noise if noisy else None, floor=1e-12, backend=backend,
+            )  # fmt: skip
+            return args, kwargs
+
+        def check(a, b, args_a, args_b):
+            # libm's log and exp against NumPy's (the reuse_step twin's check): a few
+            # ulps of each value, or of the largest where a difference cancels; NaN and
+            # ±inf in the same places.
+            for x, y in zip(a, b):
+                assert np.array_equal(np.isnan(x), np.isnan(y))
+                assert np.array_equal(np.isinf(x), np.isinf(y))
+                ok = np.isfinite(x)
+                scale = float(np.abs(x[ok]).max(initial=0.0))
+                np.testing.assert_allclose(y[ok], x[ok], rtol=1e-13, atol=1e-13 * scale)
+            assert (a[1] > 1).any() and (a[1] == 0).any()
+            # The stores: this frame's control and proxy bit for bit; the accumulation
+            # and the count, from values within those ulps, within a float32 rounding.
+            ha, hb = args_a[0][0], args_b[0][0]
+            for name in T_FIELDS:
+                x, y = ha.buffers[name], hb.buffers[name]
+                assert x.dtype == y.dtype == np.float32
+                if name.startswith(("ctl", "prox")):
+                    same_bits(x, y, name)
+                else:
+                    np.testing.assert_allclose(y, x, rtol=2**-23, atol=0, err_msg=name)
+            fresh = build("numpy")[0][0]  # the history before the step
+            stored = {"acc_r": True, "acc_n": True, "ctl_g": mode != "plain"}
+            stored["prox_b"] = mode == "multiplicative"
+            for name, changed in stored.items():
+                after = hb.buffers[name].reshape(-1)[geom.index]
+                same = np.array_equal(after, fresh.buffers[name].reshape(-1)[geom.index])
+                assert same != changed, name
 
         return Case(f"{mode}-{'clamp' if np.isfinite(clamp) else 'no-clamp'}-"
                     f"{'noise' if noisy else 'no-noise'}", build, check)  # fmt: skip
@@ -598,8 +729,10 @@ def composite_cases() -> list[Case]:
 
 CASES: dict[str, Callable[[], list[Case]]] = {
     "sampling": sampling_cases,
+    "estimate_variance": estimate_variance_cases,
     "surface": surface_cases,
     "float_image": float_image_cases,
+    "row_mean": row_mean_cases,
     "burley_region": burley_region_cases,
     "spvg_counts": spvg_counts_cases,
     "spvg_update": spvg_update_cases,
@@ -609,6 +742,7 @@ CASES: dict[str, Callable[[], list[Case]]] = {
     "reproject": reproject_cases,
     "neighbourhood": neighbourhood_cases,
     "reuse_step": reuse_step_cases,
+    "reuse": reuse_cases,
     "separable_pass": separable_pass_cases,
     "composite": composite_cases,
 }

@@ -133,6 +133,23 @@ def test_evaluate_targets_compares_values_with_thresholds():
     assert nan["samples_time_r2"]["met"] is False
 
 
+def test_the_temporal_steady_frame_is_held_against_half_a_second_at_1080p():
+    def steady(size, median):
+        row = {"median_s": median, "min_s": median - 0.1, "max_s": median + 0.2}
+        row["runs_s"] = [row["min_s"], median, median, median, row["max_s"]]
+        methods = {"as_ccv_t": row, "as_ccv": {**row, "median_s": 0.1}}
+        return {"frame_time_ms": {"steady": {"size": size, "backend": "numba", "methods": methods}}}
+
+    t = results.evaluate_targets(steady("1920x1080", 0.45))["as_ccv_t_1080p_s"]
+    assert t == {
+        "value": 0.45, "target": "<= 0.5", "met": True, "min_s": 0.35, "max_s": 0.65,
+        "runs": 5, "backend": "numba",
+    }  # fmt: skip
+    assert results.evaluate_targets(steady("1920x1080", 0.51))["as_ccv_t_1080p_s"]["met"] is False
+    # Another size is no figure for the target.
+    assert "as_ccv_t_1080p_s" not in results.evaluate_targets(steady("32x18", 0.01))
+
+
 def test_config_refuses_unknown_sections():
     with pytest.raises(ValueError, match="sections"):
         dataclasses.replace(config.QUICK, sections=("cost", "speed"))
@@ -323,6 +340,15 @@ def test_smoke_frame_time_per_backend_size_and_method(smoke):
         for rows in ft[b].values():
             assert set(rows) == set(config.QUICK.frame_methods)
             assert all(ms > 0 for ms in rows.values())
+    steady = ft["steady"]
+    assert steady["size"] == "32x18" and steady["backend"] == "numba"
+    assert (steady["warmup"], steady["runs"]) == (2, 5)
+    assert set(steady["methods"]) == set(config.QUICK.steady_methods)
+    for row in steady["methods"].values():
+        runs = row["runs_s"]
+        assert len(runs) == 5 and all(s > 0 for s in runs)
+        assert (row["min_s"], row["max_s"]) == (min(runs), max(runs))
+        assert row["median_s"] == sorted(runs)[2]
 
 
 def test_smoke_pareto_per_backend_same_samples_other_times(smoke):

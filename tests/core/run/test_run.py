@@ -382,7 +382,7 @@ def _set(mapping, key, value):
 
 
 DAMAGE = {
-    # The numba kernels index the history with the frame's pixel indices: a buffer
+    # The numba passes index the history with the frame's pixel indices: a buffer
     # of another shape crashed the process (segfault) before it was checked.
     "history buffer of another shape": (
         lambda s, a: _set(a, "h_buf_mu", np.zeros((5, 5), np.float32)),

@@ -1,7 +1,7 @@
-"""Compile the numba kernels into the disk cache in a process of their own, then exit.
+"""Compile the numba passes into the disk cache in a process of their own, then exit.
 
 Started by :func:`sss_addon.precompile.start_background` as
-``python compile_kernels.py <package folder> <package name> [<pixels>]``: it imports the
+``python compile_passes.py <package folder> <package name> [<pixels>]``: it imports the
 extension's ``core`` under the same module names as the process that started
 it (``bl_ext.user_default.cvsss`` inside Blender), so the cache entries it
 writes are the ones that process loads, and runs ``core.backends.compile.compile_all``.
