@@ -6,6 +6,7 @@ post    post-process a directory of pass EXRs (no Blender needed)
 render  render a .blend's passes with Blender (bpy) and post-process them
 demo    the main job end to end (passes, every method, summary + report)
 bench   speed and the speed/accuracy trade, measured (out/bench/bench.json + plots)
+compare the user's frame against Cycles' ground truth: plain, Apply on Render (needs bpy)
 cv1d, fig2, fp16, separable-kernels
         the studies (coefficient study, 1D motivating example, float16
         history, separable kernels)
@@ -56,7 +57,7 @@ from ..farm.passes import PassRenderError, render_chunks
 from ..farm.post import post_distributed, tiled_processors
 from ..precompile import before_first_frame
 from ..progress import printer
-from . import bench, studies
+from . import bench, compare, studies
 from .demo import SOURCES, DemoError, run_demo
 from .heap import keep_freed_memory
 from .params import (
@@ -418,6 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_arguments(rnd)
 
     bench.add_parser(sub)
+    compare.add_parser(sub)
     studies.add_parsers(sub)
     return parser
 
@@ -684,6 +686,8 @@ def run(argv: list[str] | None = None) -> int:
         return _demo(args)
     if args.command == "render":
         return _render(args)
+    if args.command == "compare":
+        return compare.run(args, parse_frames(args.frames))
     if args.command == "bench":
         try:
             return bench.run(args)
