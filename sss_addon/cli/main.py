@@ -285,6 +285,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=1024,
         help="samples per pixel of the ground truth (default 1024)",
     )
+    demo.add_argument(
+        "--compare-frames",
+        type=int,
+        default=2,
+        metavar="K",
+        help="frames (from frame 21) of the 'what you had / what you get' table: plain Cycles "
+        "with its denoiser, plain EEVEE and Apply on Render on each against the ground truth, "
+        "with seconds per frame (default 2; 0: off; with the ground truth only)",
+    )
     demo.add_argument("--overwrite", action="store_true", help="make the passes again")
     add_arguments(demo)
 
@@ -647,7 +656,13 @@ def _demo(args: argparse.Namespace) -> int:
     _check_at_least_one("--ground-truth-spp", args.ground_truth_spp)
     if args.ground_truth_every < 0:
         raise UserError(f"--ground-truth-every must be >= 0, got {args.ground_truth_every}")
-    truth = TruthPlan(every=args.ground_truth_every, samples=args.ground_truth_spp)
+    if args.compare_frames < 0:
+        raise UserError(f"--compare-frames must be >= 0, got {args.compare_frames}")
+    truth = TruthPlan(
+        every=args.ground_truth_every,
+        samples=args.ground_truth_spp,
+        users_frames=args.compare_frames,
+    )
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))
         if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
