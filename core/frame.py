@@ -33,6 +33,16 @@ MAX_MOTION = 1e7
 #: pass) and object index it stores.
 MAX_PASS_INDEX = 2**15 - 1
 
+#: The Principled BSDF's subsurface methods (Blender identifiers). A material of the
+#: passes scatters with one of them in Cycles; the post models each
+#: (core.profiles.random_walk).
+SUBSURFACE_METHODS = ("BURLEY", "RANDOM_WALK", "RANDOM_WALK_SKIN")
+
+#: A linked (textured) Base Color is resolved to the mean of the Diffuse Color pass over
+#: the material's pixels, rounded to this many decimals (linear): a still scene keeps one
+#: value, and so one profile, while the pass's noise moves the mean in its last digits.
+BASE_COLOR_DIGITS = 3
+
 #: Object indices are clipped to [0, this] (the compiled sampling pass keeps slot and object
 #: in one float32, exact below 2**24).
 MAX_OBJECTS = 2**15
@@ -79,6 +89,50 @@ def compact_slots(material: np.ndarray, keys: np.ndarray) -> np.ndarray:
     return np.where(hit, pos + 1, 0).astype(np.int32)
 
 
+def resolve_base_colors(
+    materials: dict, material: np.ndarray, albedo: np.ndarray, depth: np.ndarray
+) -> dict:
+    """``materials`` with each linked Base Color taken from the Diffuse Color pass.
+
+    The random-walk model (core.profiles.random_walk) needs one albedo per
+    material. Where the Base Color is textured (option ``base_color_linked``)
+    the pass render cannot know it before the frame is rendered, so the mean of
+    the Diffuse Color pass over the material's pixels with a surface stands in,
+    rounded to :data:`BASE_COLOR_DIGITS` decimals. A material without pixels in
+    the frame keeps its ``base_color`` (the socket's value). Burley materials
+    and unlinked Base Colors are returned as they are.
+
+    Parameters
+    ----------
+    materials : dict slot -> MaterialSpec
+    material : (H, W) int, Material Index pass
+    albedo : (H, W, 3) float, Diffuse Color pass, linear
+    depth : (H, W) float, planar depth (inf: background)
+
+    Returns
+    -------
+    dict slot -> MaterialSpec (``materials`` itself when nothing is linked)
+    """
+    linked = [
+        s
+        for s, spec in materials.items()
+        if spec.method != "BURLEY" and spec.options.get("base_color_linked")
+    ]
+    if not linked:
+        return materials
+    out = dict(materials)
+    surface = np.isfinite(depth)
+    for slot in linked:
+        pixels = surface & (material == slot)
+        if not pixels.any():
+            continue
+        mean = albedo[pixels].astype(np.float64).mean(axis=0)
+        color = [round(min(max(float(v), 0.0), 1.0), BASE_COLOR_DIGITS) for v in mean]
+        spec = out[slot]
+        out[slot] = dataclasses.replace(spec, options={**spec.options, "base_color": color})
+    return out
+
+
 def compact_materials(materials) -> dict:
     """The frame's MaterialSpecs keyed by compact slot 1..K (their own ``slot`` unchanged)."""
     return {i: materials[int(k)] for i, k in enumerate(slot_keys(materials), 1)}
@@ -105,6 +159,17 @@ class MaterialSpec:
         ``(1 − w)·diffuse + w·subsurface``, and so does the composite
         (docs/explanation/design.md §2.3). A linked (textured) weight travels per pixel instead
         (:attr:`Frame.sss_weight`).
+    method : str
+        The Principled BSDF's subsurface method, one of :data:`SUBSURFACE_METHODS`.
+        For RANDOM_WALK and RANDOM_WALK_SKIN ``d`` stays Blender's mapping of the
+        radius (the walk's mean free path, for RANDOM_WALK) and the profile takes
+        the fitted model's shape and energy from ``options``
+        (core.profiles.random_walk, core.profiles.energy): ``base_color`` (3
+        floats, linear), ``subsurface_radius`` (3 floats), ``subsurface_scale``,
+        ``subsurface_ior``, ``subsurface_anisotropy`` and ``base_color_linked``
+        (true: the Base Color is textured; :class:`Frame` replaces ``base_color``
+        by the mean of the Diffuse Color pass over the material's pixels). A
+        sidecar without ``method`` (older ones) means BURLEY.
     """
 
     slot: int
@@ -113,6 +178,7 @@ class MaterialSpec:
     profile: str = "burley"
     options: dict = field(default_factory=dict, compare=False)
     weight: float = 1.0
+    method: str = "BURLEY"
 
     def __post_init__(self) -> None:
         slot = self.slot
@@ -132,9 +198,16 @@ class MaterialSpec:
                 f"material {self.name!r}: subsurface weight must be in [0, 1], got {weight!r}"
             )
         object.__setattr__(self, "weight", float(weight))
+        if self.method not in SUBSURFACE_METHODS:
+            raise ValueError(
+                f"material {self.name!r}: subsurface method must be one of "
+                f"{', '.join(SUBSURFACE_METHODS)}, got {self.method!r}"
+            )
 
     def to_dict(self) -> dict:
-        return {
+        """JSON-ready form (the sidecar's entry); ``method`` is left out for BURLEY, as
+        sidecars written before it was recorded leave it out."""
+        out = {
             "slot": self.slot,
             "name": self.name,
             "d": list(self.d),
@@ -142,6 +215,9 @@ class MaterialSpec:
             "options": dict(self.options),
             "weight": self.weight,
         }
+        if self.method != "BURLEY":
+            out["method"] = self.method
+        return out
 
     @classmethod
     def from_dict(cls, data: dict) -> MaterialSpec:
@@ -155,6 +231,7 @@ class MaterialSpec:
             profile=str(data.get("profile", "burley")),
             options=dict(data.get("options", {})),
             weight=float(data.get("weight", 1.0)),
+            method=str(data.get("method", "BURLEY")),
         )
 
 
@@ -247,7 +324,8 @@ class Frame:
         Material Index pass, 0 = no subsurface.
     camera : Camera
     materials : dict[int, MaterialSpec]
-        Subsurface materials by slot.
+        Subsurface materials by slot; a whole frame resolves their linked Base
+        Colors from its Diffuse Color pass (:func:`resolve_base_colors`).
     motion : (H, W, 2) float32 or None
         Offset (dx, dy) in pixels from a pixel to where its surface was in the
         previous frame, x right and y down (EXR rows). None = static.
@@ -368,6 +446,12 @@ class Frame:
         for slot, spec in self.materials.items():
             if slot != spec.slot:
                 raise ValueError(f"material table key {slot} does not match slot {spec.slot}")
+        if self.crop is None:
+            # A crop (core.tiling) carries the whole image's values: its tiles then
+            # build the whole image's profile.
+            self.materials = resolve_base_colors(
+                self.materials, self.material, self.albedo, self.depth
+            )
         self.repaired = repaired
 
     def _check_crop(self, shape: tuple[int, int]) -> None:

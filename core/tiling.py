@@ -23,7 +23,10 @@ Why the core pixels equal the whole-image run bit for bit:
 - a core pixel's samples land within ``ceil(radius)`` pixels of it, and the
   surface area at a landing pixel reads its neighbours (the ``+ 1``); the
   history it reprojects from lies within ``ceil(|motion|)``: all inside the
-  window, where passes and history are those of the whole image;
+  window, where passes and history are those of the whole image; the
+  random-walk energy at a pixel (core.energy) reads the depth two pixels
+  away, within ``ceil(radius) + 1`` too, as any scattering slot has a radius
+  above 0;
 - a per-pixel rule that needs a frame-level yardstick (the temporal reuse's
   ε) takes the whole image's, computed once per frame and carried by the
   crop (:attr:`core.frame.Crop.light_scale`);

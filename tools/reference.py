@@ -39,7 +39,17 @@ GROUPS = (
 )
 
 #: The subcommands documented, in this order.
-COMMANDS = ("post", "render", "demo", "bench", "cv1d", "fig2", "fp16", "separable-kernels")
+COMMANDS = (
+    "post",
+    "render",
+    "compare",
+    "demo",
+    "bench",
+    "cv1d",
+    "fig2",
+    "fp16",
+    "separable-kernels",
+)
 
 
 def _cell(text: str) -> str:

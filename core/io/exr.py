@@ -534,6 +534,30 @@ def read_combined(path: str | os.PathLike) -> np.ndarray:
     return _pass_array(path, layers[0], "Combined").astype(np.float32)
 
 
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """The RGB (linear) of a render Blender wrote as OpenEXR: single-layer or multilayer.
+
+    Parameters
+    ----------
+    path : str or PathLike; an EXR with ``R``, ``G``, ``B`` channels (Blender's
+        OpenEXR format) or one view layer's ``Combined`` pass (OpenEXR MultiLayer)
+
+    Returns
+    -------
+    (H, W, 3) float32, EXR row order (top row first).
+
+    Raises
+    ------
+    PassError
+        Missing, not an EXR, truncated, or neither layout.
+    """
+    path = Path(path)
+    channels = _all_channels(_open_exr(path))
+    if all(c in channels for c in "RGB"):
+        return np.stack([channels[c] for c in "RGB"], axis=-1).astype(np.float32)
+    return read_combined(path)
+
+
 def read_result(path: str | os.PathLike) -> dict:
     """Read a result EXR written by :func:`write_result` (or any layered EXR).
 

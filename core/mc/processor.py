@@ -14,6 +14,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..energy import scale_shaded
 from ..frame import Frame
 from ..geometry import Geometry, GeometryCache, geometry_of, light_scale
 from ..method import Method, MethodOptions
@@ -223,6 +224,8 @@ class MonteCarloProcessor:
             self.history = hist
         update_ms = (time.perf_counter() - t1) * 1e3
         shaded = near + distant
+        if self.method.kind != "none":  # none is the frame without scattering (F = Combined)
+            shaded = scale_shaded(frame, geom, profile, shaded, p.distance, p.backend)
         return assemble(
             frame,
             geom,

@@ -94,6 +94,11 @@ class Profile(ABC):
     #: Whether the estimator must multiply pdf by the per-pixel weight scale.
     pixel_weight_scale: bool = True
 
+    #: The random-walk energy of the slots (core.profiles.energy.SlotEnergy), set by
+    #: core.profiles.factory where a material's subsurface method is a random walk;
+    #: None: every slot keeps the lighting's level (core.energy changes nothing).
+    energy = None
+
     def pdf_channels(self, r: np.ndarray, mat: np.ndarray) -> np.ndarray:
         """(3, N) float32 channel-major :meth:`pdf` (what the estimator uses).
 

@@ -14,7 +14,14 @@ and per profile:
 
 ``burley``
     ``d`` is ``spec.d`` (scene units), or the preset's derived Burley shape
-    ``ℓ/s(A_tot)`` when a preset is given.
+    ``ℓ/s(A_tot)`` when a preset is given. A material whose subsurface method
+    (``spec.method``) is RANDOM_WALK or RANDOM_WALK_SKIN, without a preset,
+    takes the fitted model's shape instead (:func:`.random_walk.shape`) from
+    the options ``base_color`` (required), ``subsurface_radius`` and
+    ``subsurface_scale`` (default: ``4π·d`` and 1, the same product),
+    ``subsurface_ior`` (default 1.4) and ``subsurface_anisotropy`` (default 0);
+    its energy per slot is the profile's ``energy``
+    (:class:`.energy.SlotEnergy`), which core.energy applies per pixel.
 ``dipole``
     ``preset``, or explicit ``sigma_a``, ``sigma_s`` (3 values each, mm⁻¹) and
     ``eta``; ``single_scattering`` (default true) selects ``R_{d,ss+ms}``.
@@ -45,11 +52,12 @@ import numpy as np
 
 from ..frame import compact_materials
 from ..params import ParameterError, param, validate
-from . import presets
+from . import presets, random_walk
 from .artist import ArtistProfile, from_radial
 from .base import Profile, Region
 from .burley import CYCLES_TRUNCATE, BurleyProfile
 from .dipole import MM_PER_METRE, DipoleProfile
+from .energy import SlotEnergy
 from .radial import RadialModel, radial_model
 
 PROFILE_NAMES = ("burley", "dipole", "artist")
@@ -211,6 +219,42 @@ def _burley_d(spec) -> np.ndarray:
     return np.asarray(spec.d, dtype=np.float64) if p is None else p.burley_d_mm() * _unit(spec)
 
 
+def _number(spec, key: str, default: float) -> float:
+    value = spec.options.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise ProfileError(
+            f"material {spec.name!r} (slot {spec.slot}): option {key!r} must be a finite "
+            f"number, got {value!r}"
+        )
+    return float(value)
+
+
+def _random_walk(spec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(d, albedo, ℓ, e), each (3,), of a random-walk material, or None: a BURLEY
+    material or one whose preset defines the profile."""
+    if spec.method == "BURLEY" or _preset(spec) is not None:
+        return None
+    where = f"material {spec.name!r} (slot {spec.slot})"
+    if "base_color" not in spec.options:
+        raise ProfileError(
+            f"{where}: the {spec.method} model needs option 'base_color' (3 numbers, linear)"
+        )
+    albedo = np.clip(_triple(spec, "base_color"), 0.0, 1.0)
+    if "subsurface_radius" in spec.options:
+        radius = _triple(spec, "subsurface_radius")
+        scale = _number(spec, "subsurface_scale", 1.0)
+    else:  # Blender's d = radius·scale/(4π)
+        radius, scale = 4.0 * np.pi * np.asarray(spec.d, dtype=np.float64), 1.0
+    ior = _number(spec, "subsurface_ior", 1.4)
+    anisotropy = _number(spec, "subsurface_anisotropy", 0.0)
+    try:
+        d, e = random_walk.shape(radius, scale, albedo, spec.method, ior, anisotropy)
+        ell = random_walk.mean_free_path(radius, scale, albedo, spec.method, ior)
+    except ValueError as exc:
+        raise ProfileError(f"{where}: {exc}") from None
+    return d, albedo, ell, e
+
+
 def _dipole_params(spec) -> tuple[np.ndarray, np.ndarray, float]:
     p = _preset(spec)
     if p is not None:
@@ -292,12 +336,18 @@ def build_profile(
         kinds[slot] = spec.profile
     used = sorted(set(kinds.values())) or ["burley"]
     subs = {}
+    walks: dict[int, tuple] = {}  # slot -> (method, albedo, ℓ, e) of random-walk materials
     for kind in used:
         mine = {s: m for s, m in materials.items() if kinds[s] == kind}
         if kind == "burley":
             d = np.zeros((k, 3))
             for s, spec in mine.items():
-                d[s] = _burley_d(spec)
+                walk = _random_walk(spec)
+                if walk is None:
+                    d[s] = _burley_d(spec)
+                else:
+                    d[s] = walk[0]
+                    walks[s] = (spec.method, *walk[1:])
             subs[kind] = BurleyProfile(d, truncate=truncate, inverse=burley_inverse)
         elif kind == "dipole":
             sa, ss = np.zeros((k, 3)), np.zeros((k, 3))
@@ -322,12 +372,20 @@ def build_profile(
             except ValueError as exc:
                 raise ProfileError(f"artist materials: {exc}") from None
     if len(subs) == 1:
-        return next(iter(subs.values()))
-    owner = np.zeros(k, dtype=np.intp)
-    names = list(subs)
-    for s, kind in kinds.items():
-        owner[s] = names.index(kind)
-    return MixedProfile([subs[n] for n in names], owner)
+        profile = next(iter(subs.values()))
+    else:
+        owner = np.zeros(k, dtype=np.intp)
+        names = list(subs)
+        for s, kind in kinds.items():
+            owner[s] = names.index(kind)
+        profile = MixedProfile([subs[n] for n in names], owner)
+    if walks:
+        methods = ["BURLEY"] * k
+        albedo, ell, energy = np.zeros((k, 3)), np.zeros((k, 3)), np.ones((k, 3))
+        for s, (method, a, mfp, e) in walks.items():
+            methods[s], albedo[s], ell[s], energy[s] = method, a, mfp, e
+        profile.energy = SlotEnergy(tuple(methods), albedo, ell, energy)
+    return profile
 
 
 def frame_profile(frame, params, choice: ProfileChoice | None = None) -> Profile:
@@ -364,7 +422,7 @@ class ProfileCache:
     def get(self, frame) -> Profile:
         key = tuple(
             sorted(
-                (k, v.d, v.profile, repr(sorted(v.options.items())))
+                (k, v.d, v.profile, v.method, repr(sorted(v.options.items())))
                 for k, v in frame.materials.items()
             )
         )

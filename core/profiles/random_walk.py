@@ -62,10 +62,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..frame import SUBSURFACE_METHODS
 from .burley import blender_shape
 
 #: Principled BSDF subsurface methods (Blender identifiers).
-METHODS = ("BURLEY", "RANDOM_WALK", "RANDOM_WALK_SKIN")
+METHODS = SUBSURFACE_METHODS
 
 #: The fitted tables (written by tools/random_walk/fit.py).
 FIT_PATH = Path(__file__).resolve().parent.parent / "data" / "random_walk_fit.json"

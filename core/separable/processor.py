@@ -7,6 +7,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..energy import scale_shaded
 from ..frame import Frame
 from ..geometry import GeometryCache
 from ..method import Method, MethodOptions
@@ -66,6 +67,7 @@ class SeparableProcessor:
             geom=self._geometry.get(frame, profile, backend=self.params.backend),
             backend=self.params.backend,
         )
+        shaded = scale_shaded(frame, geom, profile, shaded, self.params.distance, self.params.backend)
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)
         return assemble(
             frame,

@@ -1,11 +1,12 @@
 """Ground truth: the same frame path-traced by Cycles with its own subsurface on.
 
 The ground truth (docs/explanation/accuracy.md §1): each (or every k-th) frame is rendered again by
-Cycles — also when the passes are rendered with EEVEE — with subsurface on:
-every Principled BSDF of the participating materials (also inside node
-groups) uses ``subsurface_method`` BURLEY (Christensen-Burley, the profile
-the post-process samples) or RANDOM_WALK, with the user's Subsurface
-Weight, Radius and Scale. Denoising, adaptive sampling, the time limit and
+Cycles — also when the passes are rendered with EEVEE — with subsurface on,
+with the user's Subsurface Weight, Radius and Scale. By default (MATERIAL)
+every Principled BSDF keeps its own ``subsurface_method`` — Christensen-Burley,
+Random Walk or Random Walk (Skin), each of which the post models; BURLEY or
+RANDOM_WALK force that method on every Principled BSDF of the participating
+materials (also inside node groups). Denoising, adaptive sampling, the time limit and
 sample subsets are off, the seed fixed (:data:`SEED`), so every pixel gets
 exactly ``samples`` paths. Resolution, camera, border and pixel filter are
 the passes' (motion blur off in both).
@@ -32,8 +33,9 @@ from ...core.io.atomic import write_text
 from . import materials as sss_materials
 from .passes import SceneSetup, read_record, render_to, restore_rna
 
-#: Cycles subsurface methods the ground truth can use (Blender identifiers).
-METHODS = ("BURLEY", "RANDOM_WALK")
+#: The ground truth's subsurface method: each material's own (MATERIAL), or one forced on
+#: all (Blender identifiers).
+METHODS = ("MATERIAL", "BURLEY", "RANDOM_WALK")
 
 #: Default samples per pixel (docs/explanation/accuracy.md: at least 1024).
 DEFAULT_SAMPLES = 1024
@@ -59,7 +61,8 @@ class GroundTruthSetup(SceneSetup):
     view_layer : bpy.types.ViewLayer
         The only view layer rendered (Combined pass only).
     samples : int, samples per pixel, 1 … :data:`MAX_SAMPLES`
-    method : {"BURLEY", "RANDOM_WALK"}
+    method : {"MATERIAL", "BURLEY", "RANDOM_WALK"}
+        MATERIAL leaves every node's own method.
     denoise : bool
         Denoise with Cycles' OpenImageDenoise (albedo and normal guides): not
         a ground truth, the equal-time comparison's "Cycles + OIDN".
@@ -71,7 +74,7 @@ class GroundTruthSetup(SceneSetup):
         materials,
         view_layer,
         samples: int = DEFAULT_SAMPLES,
-        method: str = "BURLEY",
+        method: str = "MATERIAL",
         denoise: bool = False,
     ) -> None:
         super().__init__(scene, view_layer)
@@ -103,6 +106,8 @@ class GroundTruthSetup(SceneSetup):
         self._only_layer(lambda ident: ident == "use_pass_combined")
         if self.denoise and getattr(self.view_layer, "cycles", None) is not None:
             self.view_layer.cycles.use_denoising = True
+        if self.method == "MATERIAL":
+            return
         seen = set()
         for material in self.materials:
             for _, node in sss_materials.principled_nodes(material.node_tree):
@@ -125,8 +130,27 @@ def ground_truth_path(folder: Path, frame: int) -> Path:
     return Path(folder) / f"{frame:04d}.exr"
 
 
-def _record(frame: int, samples: int, method: str, view_layer: str, denoise: bool = False) -> dict:
+def material_methods(materials) -> dict[str, list[str]]:
+    """Material name -> the ``subsurface_method`` of each of its Principled BSDFs (a
+    MATERIAL ground truth renders these)."""
     return {
+        material.name: [
+            str(node.subsurface_method)
+            for _, node in sss_materials.principled_nodes(material.node_tree)
+        ]
+        for material in materials
+    }
+
+
+def _record(
+    frame: int,
+    samples: int,
+    method: str,
+    view_layer: str,
+    denoise: bool = False,
+    materials=(),
+) -> dict:
+    record = {
         "format": RECORD_FORMAT,
         "frame": int(frame),
         "engine": "CYCLES",
@@ -136,10 +160,14 @@ def _record(frame: int, samples: int, method: str, view_layer: str, denoise: boo
         "denoised": bool(denoise),
         "view_layer": view_layer,
     }
+    if method == "MATERIAL":
+        record["material_methods"] = material_methods(materials)
+    return record
 
 
-def ground_truth_done(folder: Path, frame: int, samples: int, method: str) -> bool:
-    """The frame's ground truth exists and was made with ``samples`` and ``method``."""
+def ground_truth_done(folder: Path, frame: int, samples: int, method: str, materials=()) -> bool:
+    """The frame's ground truth exists and was made with ``samples`` and ``method`` (for
+    MATERIAL: with the methods ``materials`` have now)."""
     path = ground_truth_path(folder, frame)
     record = read_record(path.with_suffix(".json"))
     return (
@@ -148,6 +176,7 @@ def ground_truth_done(folder: Path, frame: int, samples: int, method: str) -> bo
         and record.get("format") == RECORD_FORMAT
         and (record.get("subsurface_method"), record.get("samples"), record.get("seed"))
         == (method, int(samples), SEED)
+        and (method != "MATERIAL" or record.get("material_methods") == material_methods(materials))
     )
 
 
@@ -158,7 +187,7 @@ def render_ground_truth(
     materials,
     view_layer,
     samples: int = DEFAULT_SAMPLES,
-    method: str = "BURLEY",
+    method: str = "MATERIAL",
     denoise: bool = False,
 ) -> Path:
     """Render the ground truth of ``frame`` to ``<folder>/####.exr`` (+ ``.json``).
@@ -178,7 +207,7 @@ def render_ground_truth(
     with GroundTruthSetup(scene, materials, view_layer, samples, method, denoise):
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
-        record = _record(frame, samples, method, view_layer.name, denoise)
+        record = _record(frame, samples, method, view_layer.name, denoise, materials)
         write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
         render_to(scene, path)
     return path

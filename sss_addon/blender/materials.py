@@ -6,6 +6,14 @@ or a linked weight. Its Burley shape per channel comes from that node,
 ``d_c = Subsurface Radius_c · Subsurface Scale · 0.25/π``
 (:func:`core.profiles.burley.blender_shape`), unless overridden.
 
+The node's subsurface method travels with it (``MaterialSpec.method``): for
+Random Walk and Random Walk (Skin) the core replaces that d by the fitted
+model's and scales the light by the walk's energy
+(core.profiles.random_walk), from the Base Color, Radius, Scale, Subsurface
+IOR and Subsurface Anisotropy written into the spec's options
+(:func:`subsurface_model`). An override or a measured preset defines the
+profile instead, and the model is not used.
+
 For the pass render the weight is forced to 0 (links removed, animation
 muted) so the Diffuse passes hold unblurred lighting; :class:`SSSDisabled`
 puts every value, link and mute flag back, also on error.
@@ -20,13 +28,23 @@ from dataclasses import dataclass, field
 
 import bpy
 
-from ...core.frame import MaterialSpec
-from ...core.profiles import presets
+from ...core.frame import SUBSURFACE_METHODS, MaterialSpec
+from ...core.profiles import presets, random_walk
 from ...core.profiles.burley import blender_shape
 
 WEIGHT = "Subsurface Weight"
 RADIUS = "Subsurface Radius"
 SCALE = "Subsurface Scale"
+BASE_COLOR = "Base Color"
+SUBSURFACE_IOR = "Subsurface IOR"
+ANISOTROPY = "Subsurface Anisotropy"
+
+#: What the material panel calls each subsurface method.
+METHOD_LABELS = {
+    "BURLEY": "Christensen-Burley",
+    "RANDOM_WALK": "Random Walk",
+    "RANDOM_WALK_SKIN": "Random Walk (Skin)",
+}
 
 
 def principled_nodes(node_tree, _seen: set | None = None) -> Iterator[tuple[object, object]]:
@@ -87,6 +105,82 @@ def principled_shape(material) -> tuple[float, float, float] | None:
     radius = node.inputs[RADIUS].default_value
     scale = node.inputs[SCALE].default_value
     return tuple(float(v) for v in blender_shape(tuple(radius), float(scale)))
+
+
+def node_input(node, identifier: str):
+    """The node's input socket ``identifier``, or None.
+
+    By identifier, not name: ``node.inputs[name]`` does not find a socket its node
+    hides (Blender 5.0 raises KeyError for Subsurface IOR unless the method is
+    Random Walk (Skin)), and the hidden socket still holds the user's value.
+    """
+    for socket in node.inputs:
+        if socket.identifier == identifier:
+            return socket
+    return None
+
+
+def subsurface_model(material) -> tuple[str, dict]:
+    """(method, options) of the material's subsurface method for MaterialSpec.
+
+    ``method`` is the Principled BSDF's ``subsurface_method`` (BURLEY without
+    a node). For the random walks ``options`` holds what the fitted model needs
+    (core.profiles.random_walk.shape): ``base_color`` (the socket's linear RGB),
+    ``base_color_linked`` (a live link: the core takes the mean of the Diffuse
+    Color pass over the material's pixels instead, since one colour per
+    material is what the model takes), ``subsurface_radius``,
+    ``subsurface_scale``, ``subsurface_ior`` and ``subsurface_anisotropy``;
+    for BURLEY it is empty.
+    """
+    node = _source_node(material)
+    if node is None:
+        return "BURLEY", {}
+    method = str(node.subsurface_method)
+    if method not in SUBSURFACE_METHODS or method == "BURLEY":
+        return "BURLEY", {}
+    color = node_input(node, BASE_COLOR)
+    options = {
+        "base_color": [float(v) for v in tuple(color.default_value)[:3]],
+        "base_color_linked": bool(live_links(color)),
+        "subsurface_radius": [float(v) for v in node_input(node, RADIUS).default_value],
+        "subsurface_scale": float(node_input(node, SCALE).default_value),
+        "subsurface_ior": float(node_input(node, SUBSURFACE_IOR).default_value),
+        "subsurface_anisotropy": float(node_input(node, ANISOTROPY).default_value),
+    }
+    return method, options
+
+
+def model_summary(material) -> dict | None:
+    """What the post models of ``material``'s subsurface, for the material panel.
+
+    None without a Principled BSDF; else ``method`` (the Blender identifier),
+    ``label``, ``d`` (the Burley shape the post samples, scene units) and
+    ``energy`` (per channel, the factor on the scattered light before the view
+    and curvature terms; 1 for BURLEY) and ``linked`` (a textured Base Color,
+    whose socket value the panel's figures use).
+    """
+    node = _source_node(material)
+    if node is None:
+        return None
+    method, options = subsurface_model(material)
+    if method == "BURLEY":
+        d, e = principled_shape(material), (1.0, 1.0, 1.0)
+    else:
+        d, e = random_walk.shape(
+            options["subsurface_radius"],
+            options["subsurface_scale"],
+            options["base_color"],
+            method,
+            options["subsurface_ior"],
+            options["subsurface_anisotropy"],
+        )
+    return {
+        "method": method,
+        "label": METHOD_LABELS[method],
+        "d": tuple(float(v) for v in d),
+        "energy": tuple(float(v) for v in e),
+        "linked": bool(options.get("base_color_linked", False)),
+    }
 
 
 def _mm_per_unit(scene) -> float:
@@ -205,18 +299,25 @@ def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
     A chosen measured preset travels in ``options`` (name, scale and the
     scene's millimetres per unit) so the core can build its dipole profile;
     ``weight`` is the Subsurface Weight (``options["weight_linked"]`` when it is
-    linked and travels per pixel instead).
+    linked and travels per pixel instead). Without a preset or an override,
+    ``method`` and the random-walk model's inputs come from the node
+    (:func:`subsurface_model`).
     """
     specs = []
     for slot, material in enumerate(materials, 1):
         settings = _settings(material)
         options = {}
+        method = "BURLEY"
         if settings is not None and settings.preset != "NONE":
             options = {
                 "preset": settings.preset.lower(),
                 "preset_scale": float(settings.preset_scale),
                 "mm_per_unit": _mm_per_unit(scene),
             }
+        elif settings is None or not settings.use_override:
+            # The node's own profile: its method's model (an override or a preset
+            # replaces it).
+            method, options = subsurface_model(material)
         weight, linked = subsurface_weight(material)
         if linked:
             options["weight_linked"] = True
@@ -227,6 +328,7 @@ def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
                 d=material_shape(material, scene),
                 options=options,
                 weight=weight,
+                method=method,
             )
         )
     return specs

@@ -187,13 +187,29 @@ class SSS_PT_material(Panel):
         row.enabled = False
         row.prop(m, "participates")
 
-        shape = sss_materials.principled_shape(material)
+        model = sss_materials.model_summary(material)
         box = layout.box()
-        if shape is None:
+        if model is None:
             box.label(text="No Principled BSDF", icon="INFO")
         else:
-            box.label(text="Burley d from Principled BSDF (radius × scale × 0.25/π):")
-            box.label(text="R {:.5g}  G {:.5g}  B {:.5g}".format(*shape))
+            replaced = m.use_override or m.preset != "NONE"
+            box.active = not replaced
+            box.label(text=f"Model: {model['label']} (the node's Subsurface Method)")
+            if model["method"] == "BURLEY":
+                box.label(text="Burley d from Principled BSDF (radius × scale × 0.25/π):")
+                box.label(text="R {:.5g}  G {:.5g}  B {:.5g}".format(*model["d"]))
+            else:
+                box.label(text="Burley d fitted to Cycles' walk (albedo, radius, scale):")
+                box.label(text="R {:.5g}  G {:.5g}  B {:.5g}".format(*model["d"]))
+                box.label(text="Energy: R {:.3f}  G {:.3f}  B {:.3f}".format(*model["energy"]))
+                box.label(text="× view angle and curvature, per pixel")
+                if model["linked"]:
+                    box.label(
+                        text="Base Color textured: each frame's mean Diffuse Color is used",
+                        icon="INFO",
+                    )
+            if replaced:
+                box.label(text="Replaced by the override or preset below", icon="INFO")
         layout.prop(m, "use_override")
         col = layout.column()
         col.active = m.use_override

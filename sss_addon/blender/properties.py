@@ -53,13 +53,27 @@ ENGINES = (
 )
 
 #: Cycles subsurface methods of the ground truth (Blender identifiers, sss_addon.blender.ground_truth).
+# Numbered: a .blend stores the number, and BURLEY and RANDOM_WALK keep theirs.
 GROUND_TRUTH_METHODS = (
+    (
+        "MATERIAL",
+        "Each Material's Own",
+        "Each material's own Subsurface Method (Christensen-Burley, Random Walk or Random "
+        "Walk (Skin)): what the post models per material",
+        2,
+    ),
     (
         "BURLEY",
         "Christensen-Burley",
-        "Cycles' Christensen-Burley subsurface: the profile the post-process samples",
+        "Every material with Cycles' Christensen-Burley subsurface",
+        0,
     ),
-    ("RANDOM_WALK", "Random Walk", "Cycles' random-walk subsurface (volumetric, more accurate)"),
+    (
+        "RANDOM_WALK",
+        "Random Walk",
+        "Every material with Cycles' random-walk subsurface",
+        1,
+    ),
 )
 
 # Blender stores IntProperty as a signed 32-bit integer.
@@ -328,7 +342,7 @@ class SSSSettings(PropertyGroup):
         name="Method",
         description="Cycles' subsurface method in the ground-truth render",
         items=GROUND_TRUTH_METHODS,
-        default="BURLEY",
+        default="MATERIAL",
     )
     output_dir: StringProperty(
         name="Output",

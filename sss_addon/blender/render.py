@@ -118,7 +118,7 @@ class Job:
     ground_truth: bool = False
     ground_truth_samples: int = gt.DEFAULT_SAMPLES
     ground_truth_every: int = 1
-    ground_truth_method: str = "BURLEY"
+    ground_truth_method: str = "MATERIAL"
     warmup_frames: int = 0
     #: First frame of the whole range when this job renders one chunk of it, so the
     #: ground truth falls on the same frames (every k-th of the whole range).
@@ -273,7 +273,7 @@ def make_job(
     ground_truth: bool = False,
     ground_truth_samples: int = gt.DEFAULT_SAMPLES,
     ground_truth_every: int = 1,
-    ground_truth_method: str = "BURLEY",
+    ground_truth_method: str = "MATERIAL",
     warmup_frames: int = 0,
     denoise: DenoiseSettings | None = None,
 ) -> Job:
@@ -285,7 +285,8 @@ def make_job(
     ``denoise_passes`` denoises the passes, ``denoise`` the finished frames as
     these settings say (Cycles only; not both). ``ground_truth``
     renders every ``ground_truth_every``-th frame with Cycles' own subsurface
-    (``ground_truth_method`` BURLEY or RANDOM_WALK) at ``ground_truth_samples``
+    (``ground_truth_method`` MATERIAL: each material's own method, or BURLEY or
+    RANDOM_WALK forced on all) at ``ground_truth_samples``
     samples per pixel.
 
     Raises
@@ -476,7 +477,11 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
             if wanted and job.ground_truth_due(index - 1):
                 step.ground_truth = gt.ground_truth_path(job.ground_truth_dir, frame)
                 step.ground_truth_rendered = job.overwrite or not gt.ground_truth_done(
-                    job.ground_truth_dir, frame, job.ground_truth_samples, job.ground_truth_method
+                    job.ground_truth_dir,
+                    frame,
+                    job.ground_truth_samples,
+                    job.ground_truth_method,
+                    job.materials,
                 )
                 if not job.render_passes and step.ground_truth_rendered:
                     if job.overwrite and step.ground_truth.exists():

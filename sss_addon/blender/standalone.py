@@ -106,7 +106,7 @@ def render_sequence(
         defaults to ``sss_settings.use_ground_truth``.
     ground_truth_samples, ground_truth_every : int, optional
         Its samples per pixel, and every k-th frame only; default: the settings.
-    ground_truth_method : {"BURLEY", "RANDOM_WALK"}, optional
+    ground_truth_method : {"MATERIAL", "BURLEY", "RANDOM_WALK"}, optional
         Cycles' subsurface method for it; default: the setting.
     warmup_frames : int
         Render and process this many frames before the first one (not

@@ -6,6 +6,7 @@ post    post-process a directory of pass EXRs (no Blender needed)
 render  render a .blend's passes with Blender (bpy) and post-process them
 demo    the main job end to end (passes, every method, summary + report)
 bench   speed and the speed/accuracy trade, measured (out/bench/bench.json + plots)
+compare the user's frame against Cycles' ground truth: plain, Apply on Render (needs bpy)
 cv1d, fig2, fp16, separable-kernels
         the studies (coefficient study, 1D motivating example, float16
         history, separable kernels)
@@ -56,7 +57,7 @@ from ..farm.passes import PassRenderError, render_chunks
 from ..farm.post import post_distributed, tiled_processors
 from ..precompile import before_first_frame
 from ..progress import printer
-from . import bench, studies
+from . import bench, compare, studies
 from .demo import SOURCES, DemoError, run_demo
 from .heap import keep_freed_memory
 from .params import (
@@ -293,6 +294,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=1024,
         help="samples per pixel of the ground truth (default 1024)",
     )
+    demo.add_argument(
+        "--compare-frames",
+        type=int,
+        default=2,
+        metavar="K",
+        help="frames (from frame 21) of the 'what you had / what you get' table: plain Cycles "
+        "with its denoiser, plain EEVEE and Apply on Render on each against the ground truth, "
+        "with seconds per frame (default 2; 0: off; with the ground truth only)",
+    )
     demo.add_argument("--overwrite", action="store_true", help="make the passes again")
     add_arguments(demo)
 
@@ -394,10 +404,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     truth.add_argument(
         "--ground-truth-method",
-        choices=("burley", "random_walk"),
+        choices=("material", "burley", "random_walk"),
         default=None,
-        help="Cycles' subsurface method of the ground truth: burley (Christensen-Burley, the "
-        "profile the post samples) or random_walk (default: the scene's cvsss setting, burley)",
+        help="Cycles' subsurface method of the ground truth: material (each material's own "
+        "Subsurface Method: Christensen-Burley, Random Walk or Random Walk (Skin), which the "
+        "post models per material), or burley or random_walk forced on every material "
+        "(default: the scene's cvsss setting, material)",
     )
     scripts = rnd.add_argument_group(
         "Python in the .blend (drivers with Python expressions, registered text blocks)",
@@ -437,6 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_arguments(rnd)
 
     bench.add_parser(sub)
+    compare.add_parser(sub)
     studies.add_parsers(sub)
     return parser
 
@@ -724,7 +737,13 @@ def _demo(args: argparse.Namespace) -> int:
     _check_at_least_one("--ground-truth-spp", args.ground_truth_spp)
     if args.ground_truth_every < 0:
         raise UserError(f"--ground-truth-every must be >= 0, got {args.ground_truth_every}")
-    truth = TruthPlan(every=args.ground_truth_every, samples=args.ground_truth_spp)
+    if args.compare_frames < 0:
+        raise UserError(f"--compare-frames must be >= 0, got {args.compare_frames}")
+    truth = TruthPlan(
+        every=args.ground_truth_every,
+        samples=args.ground_truth_spp,
+        users_frames=args.compare_frames,
+    )
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))
         if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
@@ -763,6 +782,8 @@ def run(argv: list[str] | None = None) -> int:
         return _demo(args)
     if args.command == "render":
         return _render(args)
+    if args.command == "compare":
+        return compare.run(args, parse_frames(args.frames))
     if args.command == "bench":
         try:
             return bench.run(args)

@@ -47,6 +47,8 @@ class TruthPlan:
     samples : ground-truth samples per pixel (docs/explanation/accuracy.md: >= 1024)
     equal_time_frames : frames of the equal-time table (must carry ground truth)
     equal_time_spp : Cycles samples per pixel compared
+    users_frames : frames of the "what you had / what you get" table (0: none;
+        :mod:`.demo.users`)
     """
 
     every: int = 20
@@ -54,6 +56,7 @@ class TruthPlan:
     equal_time_frames: tuple[int, ...] = (21, 41)
     equal_time_spp: tuple[int, ...] = (16, 32, 64, 128)
     methods: tuple[str, ...] = field(default=("none", "separable", "as_ccv", "as_ccv_t"))
+    users_frames: int = 2
 
     def ground_truth_frames(self, frames: int) -> list[int]:
         return [] if self.every < 1 else list(range(1, frames + 1, self.every))
@@ -94,7 +97,8 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
         if gt.ground_truth_done(folder, f, plan.samples, "BURLEY"):
             continue
         t0 = time.perf_counter()
-        gt.render_ground_truth(scene, f, folder, mats, view_layer, plan.samples)
+        # The demo's materials are Christensen-Burley: forced, its records stay valid.
+        gt.render_ground_truth(scene, f, folder, mats, view_layer, plan.samples, "BURLEY")
         timing.setdefault("ground_truth", {})[str(f)] = time.perf_counter() - t0
         write_timing(scene_dir, timing)
         if log:
@@ -118,7 +122,9 @@ def render_truth(scene, scene_dir: Path, frames: int, plan: TruthPlan, log: Log 
                 if path.is_file() and record.is_file() and str(f) in timing.get(name, {}):
                     continue
                 t0 = time.perf_counter()
-                gt.render_ground_truth(scene, f, path.parent, mats, view_layer, spp, denoise=oidn)
+                gt.render_ground_truth(
+                    scene, f, path.parent, mats, view_layer, spp, "BURLEY", denoise=oidn
+                )
                 timing.setdefault(name, {})[str(f)] = time.perf_counter() - t0
                 write_timing(scene_dir, timing)
     if log:

@@ -14,7 +14,7 @@ from cvsss.core.params import (  # noqa: E402
     flag_of,
     specs,
 )
-from cvsss.core.profiles import presets  # noqa: E402
+from cvsss.core.profiles import presets, random_walk  # noqa: E402
 from cvsss.core.profiles.burley import blender_shape  # noqa: E402
 from cvsss.demo_blend import scenes  # noqa: E402
 from cvsss.sss_addon.blender import materials  # noqa: E402
@@ -366,6 +366,8 @@ def test_panels_draw(fresh):
 
     material = bpy.data.materials.new("m")
     material.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value = 1
+    assert material.node_tree.nodes["Principled BSDF"].subsurface_method == "RANDOM_WALK"
+    material.node_tree.nodes["Principled BSDF"].subsurface_method = "BURLEY"
     log.clear()
     panels.SSS_PT_material.draw(
         SimpleNamespace(layout=_Layout(log)), SimpleNamespace(material=material)
@@ -375,3 +377,15 @@ def test_panels_draw(fresh):
     }
     d = blender_shape((1.0, 0.2, 0.1), 0.05)
     assert ("label", "R {:.5g}  G {:.5g}  B {:.5g}".format(*d)) in log
+    assert ("label", "Model: Christensen-Burley (the node's Subsurface Method)") in log
+
+    # A random walk: the panel names it and shows the fitted model's d and energy.
+    material.node_tree.nodes["Principled BSDF"].subsurface_method = "RANDOM_WALK_SKIN"
+    log.clear()
+    panels.SSS_PT_material.draw(
+        SimpleNamespace(layout=_Layout(log)), SimpleNamespace(material=material)
+    )
+    assert ("label", "Model: Random Walk (Skin) (the node's Subsurface Method)") in log
+    d, e = random_walk.shape((1.0, 0.2, 0.1), 0.05, (0.8, 0.8, 0.8), "RANDOM_WALK_SKIN")
+    assert ("label", "R {:.5g}  G {:.5g}  B {:.5g}".format(*d)) in log
+    assert ("label", "Energy: R {:.3f}  G {:.3f}  B {:.3f}".format(*e)) in log

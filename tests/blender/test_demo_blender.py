@@ -94,7 +94,8 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
         "--ground-truth-spp",
         "16",
     ]
-    assert cli.main([*args, "--res", "32x18"]) == 0
+    assert cli.main([*args, "--res", "32x18", "--compare-frames", "1"]) == 0
+    args += ["--compare-frames", "0"]  # the table once: its EEVEE renders are slow on a CPU
     scene_dir = out / "regular"
     passes = sorted(p.name for p in (scene_dir / "passes").glob("*.exr"))
     assert passes == ["0001.exr", "0002.exr", "0003.exr"]
@@ -122,6 +123,24 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     assert sigmas == sorted(sigmas, reverse=True) and 1e-4 in sigmas and len(sigmas) == 4
     assert all(r["spp"] > 0 and r["psnr_gt_warm_db"] > 0 for r in truth["quality"])
     assert "the quality knob against Cycles" in (out / "report.md").read_text()
+    # What you had / what you get: plain Cycles + denoiser, plain EEVEE and Apply on Render
+    # on each, on the last frame (frame 21 is beyond the 3 frames), with the floor without
+    # subsurface; the report shows the table.
+    users = truth["users_frame"]
+    assert users["frames"] == [3]
+    assert sorted((r["engine"], r["kind"], r["denoise"]) for r in users["rows"]) == [
+        ("CYCLES", "apply_on_render", True),
+        ("CYCLES", "off", True),
+        ("CYCLES", "plain", True),
+        ("EEVEE", "apply_on_render", False),
+        ("EEVEE", "off", False),
+        ("EEVEE", "plain", False),
+    ]
+    assert all(r["samples"] == 2 and r["seconds_per_frame"] > 0 for r in users["rows"])
+    assert all(r["mean"]["psnr_whole_db"] > 5 for r in users["rows"])
+    report = (out / "report.md").read_text()
+    assert "### regular: what you had / what you get (frames 3-3)" in report
+    assert "| EEVEE 2 samples, Christensen-Burley (the materials' own) | plain |" in report
 
     # Same settings: the pass frames are reused, the methods recomputed.
     mtimes = {p: p.stat().st_mtime_ns for p in (scene_dir / "passes").glob("*.exr")}

@@ -1,6 +1,7 @@
 """Cycles ground truth (docs/explanation/accuracy.md §1): rendered with subsurface on, measured against, scene restored."""
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -49,6 +50,7 @@ def _spy(monkeypatch, fail_on_ground_truth: bool = False) -> list[dict]:
                 "denoising": scene.cycles.use_denoising,
                 "adaptive": scene.cycles.use_adaptive_sampling,
                 "method": _skin().subsurface_method,
+                "methods": _methods(),
                 "weight": _skin().inputs["Subsurface Weight"].default_value,
                 "format": scene.render.image_settings.file_format,
             }
@@ -69,8 +71,13 @@ def test_ground_truth_every_k_frames_in_metrics_and_scene_restored(
     demo, tmp_path, snapshot, monkeypatch
 ):
     scene_state, state_diff = snapshot
-    _skin().subsurface_method = "RANDOM_WALK_SKIN"  # a user value that must come back
+    # User values the ground truth renders (each material's own method, the default)
+    # and that must come back.
+    _skin().subsurface_method = "RANDOM_WALK_SKIN"
+    marble = bpy.data.materials["cvsss Marble"].node_tree.nodes["Principled BSDF"]
+    marble.subsurface_method = "RANDOM_WALK"
     before, methods = scene_state(demo), _methods()
+    assert set(methods.values()) == {"BURLEY", "RANDOM_WALK", "RANDOM_WALK_SKIN"}
     seen = _spy(monkeypatch)
     out = tmp_path / "gt"
 
@@ -105,12 +112,24 @@ def test_ground_truth_every_k_frames_in_metrics_and_scene_restored(
                 "seed": gt.SEED,
                 "denoising": False,
                 "adaptive": False,
-                "method": "BURLEY",
+                "method": "RANDOM_WALK_SKIN",
+                "methods": methods,
                 "weight": 1.0,
                 "format": "OPEN_EXR_MULTILAYER",
             }
         else:
             assert s["weight"] == 0.0 and s["method"] == "RANDOM_WALK_SKIN"
+    record = json.loads((out / "ground_truth" / "0001.json").read_text())
+    assert record["subsurface_method"] == "MATERIAL"
+    assert record["material_methods"]["cvsss Skin"] == ["RANDOM_WALK_SKIN"]
+    assert record["material_methods"]["cvsss Marble"] == ["RANDOM_WALK"]
+    # The pass sidecar carries each material's method to the post.
+    sidecar = json.loads((out / "passes" / "0001.json").read_text())
+    assert {m["name"]: m.get("method", "BURLEY") for m in sidecar["materials"]} == {
+        "cvsss Apple": "BURLEY",
+        "cvsss Marble": "RANDOM_WALK",
+        "cvsss Skin": "RANDOM_WALK_SKIN",
+    }
     folder = out / "ground_truth"
     assert sorted(p.name for p in folder.iterdir()) == [
         "0001.exr",
@@ -162,9 +181,10 @@ def test_error_or_cancel_during_ground_truth_restores_scene(demo, tmp_path, snap
             reference=False,
             ground_truth=True,
             ground_truth_samples=SPP,
+            ground_truth_method="RANDOM_WALK",
         )
     assert [(s["frame"], s["truth"]) for s in seen] == [(1, False), (1, True)]
-    assert seen[-1]["method"] == "BURLEY"  # the setup was in force when it failed
+    assert seen[-1]["method"] == "RANDOM_WALK"  # the setup was in force when it failed
     assert not state_diff(before, scene_state(demo))
     assert _methods() == methods
     folder = tmp_path / "o" / "ground_truth"
@@ -235,20 +255,29 @@ def test_cli_random_walk_and_blend_untouched(demo, tmp_path, monkeypatch):
     with open(tmp_path / "o" / "metrics.csv") as stream:
         (row,) = csv.DictReader(stream)
     assert float(row["psnr_gt_db"]) > 10
-    # Another method makes the ground truth again; the same one reuses it.
+    # Another method (the default: each material's own) makes the ground truth again;
+    # the same one reuses it, unless a material's method changed since.
     seen.clear()
     assert cli.main(argv) == 0
     assert [(s["truth"], s["method"]) for s in seen] == [(True, "BURLEY")]
     seen.clear()
     assert cli.main(argv) == 0
     assert seen == []
+    folder = tmp_path / "o" / "ground_truth"
+    mats = materials.participating(bpy.context.scene)
+    assert gt.ground_truth_done(folder, 2, SPP, "MATERIAL", mats)
+    _skin().subsurface_method = "RANDOM_WALK_SKIN"
+    assert not gt.ground_truth_done(folder, 2, SPP, "MATERIAL", mats)
 
 
 def test_bad_ground_truth_settings_are_refused(demo, tmp_path):
     for kwargs, message in [
         ({"ground_truth_samples": 0}, "ground_truth_samples must be an integer between 1 and"),
         ({"ground_truth_every": 0}, "ground_truth_every must be an integer >= 1, got 0"),
-        ({"ground_truth_method": "CHRISTENSEN"}, "ground_truth_method must be one of BURLEY"),
+        (
+            {"ground_truth_method": "CHRISTENSEN"},
+            "ground_truth_method must be one of MATERIAL, BURLEY, RANDOM_WALK",
+        ),
     ]:
         with pytest.raises(render.RenderError, match=message):
             render.job_from_scene(demo, out=tmp_path, ground_truth=True, **kwargs)

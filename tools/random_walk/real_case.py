@@ -15,6 +15,20 @@ point light, 128x72. Three steps::
     python tools/random_walk/real_case.py compare OUT/run/passes OUT/truth.exr \
         --materials OUT/scene.blend.json
 
+The product (the method and inputs of each material in the pass sidecar, the
+model applied by the post, the ground truth with each material's own method)
+is measured with ``product``, on the run folder of ``cvsss render`` (step 2
+with the default ``--ground-truth-method material``)::
+
+    python tools/random_walk/real_case.py product OUT/run
+    # the flash demo scene with its subsurface materials switched to a random walk:
+    python tools/random_walk/real_case.py demo OUT/flash.blend --method RANDOM_WALK
+
+It prints the display-space PSNR (whole frame / subsurface pixels) of each
+method's result EXR (``integrated``) and of the same passes post-processed with
+every material taken as BURLEY at its Blender d (``burley``: the post before
+the model was integrated).
+
 Step 3 goes through the core's own processors and composite; the model's d
 replaces the sidecar's d of each material, and its energy factor e scales the
 scattered light: ``F = Combined − A·B + e·A·L`` (subsurface weight 1). Rows:
@@ -222,6 +236,65 @@ def compare(passes: Path, truth: Path, materials: dict, methods: list[str]) -> l
     return rows
 
 
+def build_demo(path: Path, method: str, size: tuple[int, int], samples: int) -> None:
+    """The flash demo scene (frame 1 only), every subsurface Principled BSDF set to ``method``."""
+    import bpy
+
+    from cvsss.demo_blend import scenes
+    from cvsss.sss_addon.blender import materials, standalone
+
+    standalone.ensure_registered()
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scenes.build("flash", scene, frames=1)
+    scene.render.resolution_x, scene.render.resolution_y = size
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    for material in materials.participating(scene):
+        for _, node in materials.principled_nodes(material.node_tree):
+            node.subsurface_method = method
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+
+
+def product_rows(run: Path) -> list[dict]:
+    """PSNR of a ``cvsss render`` run's results and of the Burley post on its passes."""
+    from cvsss.core import SSSParams, make_processor
+    from cvsss.core.eval.metrics import psnr_gt
+    from cvsss.core.io.exr import list_frames, read_combined, read_frame, read_result
+
+    rows = []
+    for number, path in list_frames(run / "passes"):
+        truth = run / "ground_truth" / f"{number:04d}.exr"
+        if not truth.is_file():
+            continue
+        gt = read_combined(truth)
+        frame = read_frame(path, number)
+        burley = dataclasses.replace(
+            frame,
+            materials={
+                s: dataclasses.replace(spec, method="BURLEY") for s, spec in frame.materials.items()
+            },
+        )
+        for method_dir in sorted(p for p in run.iterdir() if (p / path.name).is_file()):
+            if method_dir.name in ("passes", "ground_truth"):
+                continue
+            result = read_result(method_dir / path.name)
+            mask = result["Mask"] > 0.5
+            old = make_processor(method_dir.name, SSSParams()).process(burley)
+            for model, image in (("burley", old.composite), ("integrated", result["Composite"])):
+                rows.append(
+                    {
+                        "frame": number,
+                        "method": method_dir.name,
+                        "model": model,
+                        "psnr_full_db": round(psnr_gt(image, gt), 2),
+                        "psnr_sss_db": round(psnr_gt(image, gt, mask), 2),
+                    }
+                )
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -243,11 +316,23 @@ def main(argv=None) -> int:
     c.add_argument("truth", type=Path)
     c.add_argument("--materials", type=Path, required=True)
     c.add_argument("--method", default="reference,as_ccv")
+    d = sub.add_parser("demo")
+    d.add_argument("blend", type=Path)
+    d.add_argument("--method", default="RANDOM_WALK", choices=("RANDOM_WALK", "RANDOM_WALK_SKIN"))
+    d.add_argument("--size", type=int, nargs=2, default=(320, 180), help="resolution")
+    d.add_argument("--samples", type=int, default=16, help="samples of the passes")
+    r = sub.add_parser("product")
+    r.add_argument("run", type=Path, help="output folder of cvsss render --ground-truth")
     args = ap.parse_args(argv)
     if args.cmd == "scene":
         build_scene(args.blend, args.method, args.samples, args.scale, tuple(args.size), args.lens)
     elif args.cmd == "truth":
         render_truth(args.blend, args.out, args.spp)
+    elif args.cmd == "demo":
+        build_demo(args.blend, args.method, tuple(args.size), args.samples)
+    elif args.cmd == "product":
+        for row in product_rows(args.run):
+            print(json.dumps(row))
     else:
         mats = json.loads(args.materials.read_text())
         for row in compare(args.passes, args.truth, mats, args.method.split(",")):

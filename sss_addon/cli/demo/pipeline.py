@@ -26,6 +26,7 @@ from .analysis import (
 )
 from .passes import CYCLES_SAMPLES, SOURCES, DemoError, blender_passes, synthetic_passes
 from .report import header_lines, measured_table, write_report, write_summary, write_truth
+from .users import users_frame
 
 #: Methods compared by the demo, in report order.
 DEMO_METHODS = (
@@ -219,7 +220,8 @@ def truth_extras(
     samples: int,
     log: Callable[[str], None] | None,
 ) -> dict:
-    """Equal-time table, half-weight material and moving-shadow figures of one scene."""
+    """Equal-time table, half-weight material, moving-shadow figures and the "what you had
+    / what you get" table (:mod:`.users`) of one scene."""
     table = truth.table_frames(frames)
     extra: dict = {"equal_time_frames": table}
     denoised = scene_dir / "denoised" / "passes"
@@ -241,6 +243,9 @@ def truth_extras(
     extra["conclusion"] = conclusion(extra["equal_time"])
     if log and extra["equal_time"]:
         log(format_equal_time(extra["equal_time"]))
+    users = users_frame(scene, scene_dir, frames, truth.users_frames, truth.samples, log)
+    if users is not None:
+        extra["users_frame"] = users
     return extra
 
 

@@ -15,6 +15,7 @@ from ....core.params import SSSParams
 from ..truth import TruthPlan, format_equal_time
 from .analysis import SWITCH
 from .targets import check_targets, check_temporal_targets, check_truth_targets, truth_reasons
+from .users import format_users_frame
 
 #: The paper's Table 3 (UE4, 2560×1440, RTX 2080 Ti), for orientation.
 PAPER_TABLE3 = {
@@ -124,6 +125,9 @@ def write_report(
                     "",
                     format_equal_time(e["equal_time"]),
                 ]
+        for scene, e in extras.items():
+            if e.get("users_frame"):
+                lines += format_users_frame(scene, e["users_frame"])
         for scene, e in extras.items():
             if e.get("quality"):
                 lines += [

@@ -24,6 +24,7 @@ from cvsss.core.io.exr import (
     motion_from_vector,
     read_frame,
     read_result,
+    read_rgb,
     use_threads,
     vector_from_motion,
     write_passes,
@@ -808,3 +809,18 @@ def test_a_thread_count_already_set_is_kept(exr_threads):
     OpenEXR.set_global_thread_count(3)
     assert use_threads() == 3
     assert OpenEXR.global_thread_count() == 3
+
+
+def test_read_rgb_of_a_single_layer_and_a_multilayer_render(tmp_path):
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    rgb = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3) / 7.0
+    single = {c: np.ascontiguousarray(rgb[..., i]) for i, c in enumerate("RGB")}
+    single["A"] = np.ones((4, 5), np.float32)
+    OpenEXR.File(header, single).write(str(tmp_path / "single.exr"))
+    np.testing.assert_array_equal(read_rgb(tmp_path / "single.exr"), rgb)
+    layered = {f"View Layer.Combined.{c}": a for c, a in single.items()}
+    OpenEXR.File(header, layered).write(str(tmp_path / "layered.exr"))
+    np.testing.assert_array_equal(read_rgb(tmp_path / "layered.exr"), rgb)
+    OpenEXR.File(header, {"Y": single["R"]}).write(str(tmp_path / "grey.exr"))
+    with pytest.raises(PassError, match="no Combined pass"):
+        read_rgb(tmp_path / "grey.exr")
