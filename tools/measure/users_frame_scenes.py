@@ -1,0 +1,73 @@
+"""Save the scenes issue 44's figures are measured on, at a given size, for ``cvsss compare``.
+
+The three demo scenes (demo_blend/scenes.py, Christensen-Burley materials) and
+the independent check scene (docs/checks/flicker_point_light.py, built without
+the demo's helpers, Principled BSDF left at Blender's default Random Walk),
+each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
+``--eevee-samples``; Cycles' denoiser is left as the scene has it (``cvsss
+compare`` turns it on for the plain render, as Blender's default does)::
+
+    .venv/bin/python tools/measure/users_frame_scenes.py out/users 128 72
+    .venv/bin/cvsss compare out/users/flicker.blend --frames 10-11 \
+        --out out/users/flicker --engine CYCLES --samples 16,64 \
+        --method-variants material,BURLEY
+"""
+
+from __future__ import annotations
+
+import argparse
+import runpy
+import sys
+from pathlib import Path
+
+import bpy
+
+from cvsss.demo_blend import scenes
+from cvsss.sss_addon.blender.standalone import ensure_registered
+
+ROOT = Path(__file__).resolve().parents[2]
+CHECK_SCENE = ROOT / "docs" / "checks" / "flicker_point_light.py"
+
+
+def build(name: str, path: Path) -> None:
+    """The scene ``name`` (a demo scene or ``flicker``) in a fresh file, saved at ``path``."""
+    if name == "flicker":
+        argv = sys.argv
+        sys.argv = [str(CHECK_SCENE), str(path)]
+        try:
+            runpy.run_path(str(CHECK_SCENE), run_name="__main__")
+        finally:
+            sys.argv = argv
+        return
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scenes.build(name, bpy.context.scene, frames=120)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", type=Path)
+    parser.add_argument("width", type=int)
+    parser.add_argument("height", type=int)
+    parser.add_argument("--scenes", default="flicker," + ",".join(scenes.names()))
+    parser.add_argument("--samples", type=int, default=16)
+    parser.add_argument("--eevee-samples", type=int, default=16)
+    args = parser.parse_args()
+    ensure_registered()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name in args.scenes.split(","):
+        path = args.out / f"{name}.blend"
+        build(name, path)
+        bpy.ops.wm.open_mainfile(filepath=str(path))
+        scene = bpy.context.scene
+        scene.render.resolution_x, scene.render.resolution_y = args.width, args.height
+        scene.render.resolution_percentage = 100
+        scene.cycles.device = "CPU"
+        scene.cycles.samples = args.samples
+        scene.eevee.taa_render_samples = args.eevee_samples
+        bpy.ops.wm.save_as_mainfile(filepath=str(path))
+        print(f"saved {path}")
+
+
+if __name__ == "__main__":
+    main()
