@@ -70,8 +70,14 @@ fig2: $(STAMP)
 # 2.4 min, the Pareto sweep on both backends 3 min, the tiled post on 1 and 2 Dask workers
 # at 1280x720 1 min (section workers, issue 16); the memory section runs last.
 # `cvsss bench --write-calibration` also refreshes core/data/quality_calibration.json.
+# The bench, then Apply on Render's cost per frame against the plain render (issue 46) at
+# 640x360 and 1280x720, each a ratio of interleaved renders in one run.
 bench: $(STAMP)
 	$(BIN)/cvsss bench --out $(OUT)/bench
+	for size in 640x360 1280x720; do \
+		$(BIN)/python tools/measure/apply_on_render_cost.py --size $$size --frames 4 \
+			--rounds 2 --json $(OUT)/bench/apply_on_render_$$size.json || exit 1; \
+	done
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

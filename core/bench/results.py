@@ -30,8 +30,19 @@ def evaluate_targets(result: dict) -> dict:
         for b, sizes in cost.get("by_backend", {"": cost["sizes"]}).items():
             ratios = {k: v["as_ccv"]["ratio_to_gather"] for k, v in sizes.items()}
             name = f"ns_per_sample_vs_gather_{b}" if b else "ns_per_sample_vs_gather"
+            spread = {
+                k: [v["as_ccv"].get("ratio_min"), v["as_ccv"].get("ratio_max")]
+                for k, v in sizes.items()
+            }
+            runs = min(v["as_ccv"].get("ratio_runs", 0) for v in sizes.values())
             t[name] = _target(
-                max(ratios.values()), limits.get(b, 4.0), "<=", per_size=ratios, method="as_ccv"
+                max(ratios.values()),
+                limits.get(b, 4.0),
+                "<=",
+                per_size=ratios,
+                spread=spread,
+                runs=runs,
+                method="as_ccv",
             )
         big = list(cost["sizes"])[-1]
         t["overhead_fraction_as_ocv"] = _target(

@@ -509,6 +509,14 @@ def format_summary(result: dict) -> str:
         v = t["value"]
         vs = "n/a" if v is None else f"{v:.4g}"
         lines.append(f"{name:<38} {vs:>10}   {t['target']:>10}   {'yes' if t['met'] else 'NO'}")
+    cpu = (result.get("environment") or {}).get("cpu_model") or "an unnamed CPU"
+    for name, t in result.get("targets", {}).items():
+        if name.startswith("ns_per_sample_vs_gather") and t.get("spread"):
+            text = ", ".join(
+                f"{size} {t['per_size'][size]:.2f}x ({lo:.2f}–{hi:.2f})"
+                for size, (lo, hi) in t["spread"].items()
+            )
+            lines.append(f"{name}: median of {t['runs']} interleaved runs {text} on {cpu}")
     ns, gather = result.get("ns_per_sample", {}), result.get("gather_ns_per_sample", {})
     for b, sizes in ns.items():
         for size, v in sizes.items():

@@ -19,6 +19,10 @@ steps; the rest is Blender's pass render). From the repository root::
     python tools/measure/apply_on_render_cost.py --size 128x72 --spp 16 --frames 8 --rounds 3
     python tools/measure/apply_on_render_cost.py --size 128x72 --spp 64 --method as_ccv_t
     python tools/measure/apply_on_render_cost.py --compositor --multilayer
+    python tools/measure/apply_on_render_cost.py --size 1280x720 --frames 4 --json out.json
+
+(``make bench`` runs it at 640×360 and 1280×720 and keeps the JSON beside the
+bench's results: issue 46's Apply on Render cost.)
 
 (``--compositor``: a compositor of a few nodes reading a pass; ``--multilayer``: a
 multilayer EXR of a few passes, Cryptomatte among them, instead of PNG.)
@@ -31,6 +35,8 @@ from __future__ import annotations
 import argparse
 import collections
 import functools
+import json
+import os
 import statistics
 import sys
 import tempfile
@@ -123,6 +129,7 @@ def main() -> None:
         help="32-bit multilayer EXR output with Normal, Mist, Object Index and Cryptomatte "
         "passes (instead of PNG)",
     )
+    parser.add_argument("--json", type=Path, help="also write the medians and runs here")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     scene = build_scene(width, height, args.spp, args.frames)
@@ -172,6 +179,32 @@ def main() -> None:
         )
         print(f"    Apply on Render's steps (s per frame): {parts}")
     print("  runs (s):", {k: [round(t, 2) for t in v] for k, v in times.items()})
+    if args.json:
+        per_frame = {"animation": frames, "still": 1}
+        summary = {
+            "size": f"{width}x{height}",
+            "spp": args.spp,
+            "method": args.method,
+            "frames": frames,
+            "warmup_frames": settings.warmup_frames,
+            "rounds": args.rounds,
+            "extras": extras,
+            "load_average_end": _load(),
+            "cases": {
+                name: {
+                    "plain_s_per_frame": statistics.median(times[f"{name} plain"]) / n,
+                    "apply_s_per_frame": statistics.median(times[f"{name} apply"]) / n,
+                    "ratio": statistics.median(times[f"{name} apply"])
+                    / statistics.median(times[f"{name} plain"]),
+                }
+                for name, n in per_frame.items()
+            },
+            "runs_s": times,
+        }
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        temporary = args.json.with_name(args.json.name + ".tmp")
+        temporary.write_text(json.dumps(summary, indent=1) + "\n")
+        os.replace(temporary, args.json)
 
 
 def multilayer(scene) -> None:
