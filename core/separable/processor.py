@@ -67,7 +67,9 @@ class SeparableProcessor:
             geom=self._geometry.get(frame, profile, backend=self.params.backend),
             backend=self.params.backend,
         )
-        shaded = scale_shaded(frame, geom, profile, shaded, self.params.distance, self.params.backend)
+        shaded = scale_shaded(
+            frame, geom, profile, shaded, self.params.distance, self.params.backend
+        )
         reads = np.full(geom.size, stats["reads_per_pixel"], np.int32)
         return assemble(
             frame,
