@@ -36,6 +36,7 @@ from ...core.io.atomic import write_text
 from ...core.io.exr import read_rgb
 from .. import precompile
 from . import materials as sss_materials
+from .apply_on_render.session import warm_up_pays
 from .errors import RenderError
 from .passes import output_size, render_view_layer
 from .properties import settings_to_params
@@ -63,7 +64,8 @@ def apply_on_render_settings(scene) -> dict:
     s = scene.sss_settings
     return {
         "method": s.method,
-        "warmup_frames": int(s.warmup_frames),
+        # The warm-up it runs before an animation: none for a method reusing no estimates.
+        "warmup_frames": int(s.warmup_frames) if warm_up_pays(s.method) else 0,
         "denoise_passes": bool(s.use_denoise_passes),
     }
 
@@ -281,12 +283,12 @@ def describe(report: dict) -> str:
         f"{report['ground_truth']['samples']} spp, each material's own subsurface method "
         f"(the materials': {report['materials_method']}), denoising off, seed "
         f"{report['ground_truth']['seed']}. Apply on Render: {aor['method']}, warm-up "
-        f"{aor['warmup_frames']} frame(s). PSNR in display space (exposure 1/p99 of the "
+        f"{aor['warmup_frames']} frame(s) before an animation. PSNR in display space (exposure 1/p99 of the "
         "ground truth's brightest channel, sRGB, clipped); subsurface pixels: the ground truth "
         "with and without subsurface differ by more than 1 % of its peak; effect: the change "
         "subsurface makes, scaled to Cycles' lighting, against Cycles' change. s / frame: wall "
         "time of the render over the frames delivered, set-up and warm-up included (in "
-        "brackets: after the first frame began). The numba kernels were loaded once before, in "
+        "brackets: after the first frame began). The compiled passes were loaded once before, in "
         f"{report['kernel_seconds']:.2f} s."
     )
 
