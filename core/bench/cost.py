@@ -138,6 +138,7 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
                 "ns_per_sample": ns,
                 "gather_ns_per_sample": gather,
                 "ratio_to_gather": ns / gather,
+                "ratio_median": float(np.median(per_run)),
                 "ratio_runs": len(per_run),
                 "ratio_min": float(min(per_run)),
                 "ratio_max": float(max(per_run)),
@@ -150,8 +151,9 @@ def section_cost(cfg: BenchConfig, log: Log = None, start: float | None = None) 
                 log,
                 start,
                 f"cost {size_key(size)} {job.params.backend:>5} {job.method:>6}: "
-                f"{ns:7.1f} ns/sample (gather {gather:5.2f}: {ns / gather:5.1f}x, "
-                f"{min(per_run):.1f}–{max(per_run):.1f} over {len(per_run)} runs), update "
+                f"{ns:7.1f} ns/sample (gather {gather:5.2f}: {ns / gather:5.1f}x; per run median "
+                f"{np.median(per_run):.1f}, {min(per_run):.1f}–{max(per_run):.1f} over "
+                f"{len(per_run)}), update "
                 f"{update_ms:6.1f} of {total_ms:7.1f} ms",
             )
         # The size's roofline, a bound: the fastest gather of the section.

@@ -25,24 +25,34 @@ def evaluate_targets(result: dict) -> dict:
     t: dict[str, dict] = {}
     cost = result.get("cost")
     if cost:
-        # Issue 15: the compiled sampling pass within 4x of the gather roofline, NumPy within 15x.
-        limits = {"numba": 4.0, "numpy": 15.0}
+        # The compiled sampling pass within 4x of the gather roofline (issue 46). NumPy is
+        # the fallback where numba has no wheel: measured beside it, no target.
+        limits = {"numba": 4.0}
         for b, sizes in cost.get("by_backend", {"": cost["sizes"]}).items():
-            ratios = {k: v["as_ccv"]["ratio_to_gather"] for k, v in sizes.items()}
+            if b == "numpy":
+                continue
+            # Judged on the median of the per-run ratios (issue 46), where measured.
+            ratios = {
+                k: v["as_ccv"].get("ratio_median", v["as_ccv"]["ratio_to_gather"])
+                for k, v in sizes.items()
+            }
             name = f"ns_per_sample_vs_gather_{b}" if b else "ns_per_sample_vs_gather"
             spread = {
                 k: [v["as_ccv"].get("ratio_min"), v["as_ccv"].get("ratio_max")]
                 for k, v in sizes.items()
             }
             runs = min(v["as_ccv"].get("ratio_runs", 0) for v in sizes.values())
+            # Issue 46 holds numba to 4x at 1280x720: the largest size measured decides.
+            largest = max(ratios, key=lambda k: int(k.split("x")[0]) * int(k.split("x")[1]))
             t[name] = _target(
-                max(ratios.values()),
+                ratios[largest],
                 limits.get(b, 4.0),
                 "<=",
                 per_size=ratios,
                 spread=spread,
                 runs=runs,
                 method="as_ccv",
+                size=largest,
             )
         big = list(cost["sizes"])[-1]
         t["overhead_fraction_as_ocv"] = _target(

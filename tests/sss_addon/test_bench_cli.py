@@ -220,8 +220,7 @@ def test_quick_run_writes_bench_json(quick_run):
     assert data["config"] == json.loads(json.dumps(config.QUICK.to_dict()))
     assert data["environment"]["cpus"] == data["targets"]["bench_wall_s"]["cpus"]
     assert set(data["targets"]) == {
-        "ns_per_sample_vs_gather_numpy",
-        "ns_per_sample_vs_gather_numba",
+        "ns_per_sample_vs_gather_numba",  # NumPy, the fallback, has none (issue 46)
         "overhead_fraction_as_ocv",
         "samples_time_r2",
         "peak_rss_mb_largest",
@@ -252,10 +251,12 @@ def test_quick_run_reports_both_backends_and_the_jit(quick_run):
     )
     for b, sizes in result["ns_per_sample"].items():
         assert set(sizes) == {"32x18"} and sizes["32x18"] > 0
-        ratio = sizes["32x18"] / result["gather_ns_per_sample"][b]["32x18"]
-        target = result["targets"][f"ns_per_sample_vs_gather_{b}"]
-        assert target["value"] == pytest.approx(ratio)
-        assert target["target"] == ("<= 4" if b == "numba" else "<= 15")
+    target = result["targets"]["ns_per_sample_vs_gather_numba"]
+    # Judged on the median of the per-run ratios: inside their spread.
+    lo, hi = target["spread"]["32x18"]
+    assert lo <= target["value"] <= hi
+    assert target["runs"] == config.QUICK.cost_frames - 1
+    assert target["target"] == "<= 4" and target["size"] == "32x18"
     # Compiling (empty cache) is slower than loading what it wrote.
     jit = result["jit"]
     assert jit["numba"].startswith("numba ")
