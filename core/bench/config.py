@@ -45,6 +45,9 @@ class BenchConfig:
 
     scene: str = "flash"
     seed: int = 0
+    #: The cold compile the ``jit`` figure times: every pass (None), or only the sampling
+    #: build frames of this many pixels take (the smoke run: half the compile).
+    jit_pixels: int | None = None
     #: Repetitions of each timed frame (minimum taken; the Pareto sweep too, not the
     #: calibration-only points whose PSNR and spp are deterministic).
     repeats: int = 2
@@ -120,6 +123,7 @@ class BenchConfig:
 
 #: A seconds-long configuration for the smoke test.
 QUICK = BenchConfig(
+    jit_pixels=32 * 18,
     cost_sizes=((32, 18),),
     cost_frames=2,
     cost_fixed_spp=4,

@@ -256,13 +256,16 @@ def measure_rss(workers: int) -> MeasureRss:
 _COMPILE_IN_FRESH_PROCESS = (
     "import json, time; t0 = time.perf_counter(); "
     "from cvsss.core.backends import compile, select; b = select.resolve('numba'); "
-    "t1 = time.perf_counter(); s = compile.compile_all() if b == 'numba' else None; "
+    "t1 = time.perf_counter(); s = compile.compile_all(PIXELS) if b == 'numba' else None; "
     "print(json.dumps({'import_s': t1 - t0, 'compile_s': s}))"
 )
 
 
-def measure_jit() -> dict:
+def measure_jit(pixels: int | None = None) -> dict:
     """Compile time of the numba kernel, separately from everything else.
+
+    ``pixels``: compile only the sampling build frames of that many pixels take
+    (:func:`core.backends.compile.compile_all`); None, every pass.
 
     Two fresh processes share an empty ``NUMBA_CACHE_DIR``: the first compiles
     the kernel and writes the cache (``compile_s``), the second loads it
@@ -280,7 +283,7 @@ def measure_jit() -> dict:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         for key in ("compile_s", "cache_load_s"):
             proc = subprocess.run(
-                [sys.executable, "-c", _COMPILE_IN_FRESH_PROCESS],
+                [sys.executable, "-c", _COMPILE_IN_FRESH_PROCESS.replace("PIXELS", repr(pixels))],
                 capture_output=True,
                 text=True,
                 env=env,
@@ -441,7 +444,7 @@ def run_bench(
         "command": REGENERATE,
         "config": cfg.to_dict(),
         "environment": environment(),
-        "jit": measure_jit(),
+        "jit": measure_jit(cfg.jit_pixels),
     }
     if log:
         log(f"[{time.perf_counter() - start:7.1f} s] jit: {result['jit']}")

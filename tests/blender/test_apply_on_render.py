@@ -565,6 +565,9 @@ def test_blender_b_renders_a_blend_with_apply_on_render(
     assert bpy.ops.render.render(animation=True) == {"FINISHED"}  # here, for comparison
     here = _frame_paths(scene)
     scene.render.filepath = str(tmp_path / "farm" / "f_")
+    # The installed copy samples with NumPy: the same samples as the compiled passes here
+    # (to float32 rounding), without a cold compile of its own, which the next test makes.
+    scene.sss_settings.backend = "numpy"
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), copy=True)
     report, stdout = check_script(

@@ -249,7 +249,7 @@ def test_quick_run_reports_both_backends_and_the_jit(quick_run):
             "numba",
         }
     )
-    for b, sizes in result["ns_per_sample"].items():
+    for sizes in result["ns_per_sample"].values():
         assert set(sizes) == {"32x18"} and sizes["32x18"] > 0
     target = result["targets"]["ns_per_sample_vs_gather_numba"]
     # Judged on the median of the per-run ratios: inside their spread.
@@ -419,7 +419,7 @@ def test_missing_pass_folder_is_refused_before_the_jit(tmp_path, monkeypatch, ca
     """``--passes`` naming no pass folder is one message at once, not after the kernels'
     compile (about two minutes on a clean clone)."""
 
-    def compile_first():
+    def compile_first(pixels=None):
         raise AssertionError("measure_jit ran before the pass folder was checked")
 
     monkeypatch.setattr("cvsss.sss_addon.cli.bench.measure_jit", compile_first)
