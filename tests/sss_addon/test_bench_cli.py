@@ -186,6 +186,7 @@ def quick_run(tmp_path_factory):
     return tmp / "out", shipped, result, lines
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_writes_bench_json(quick_run):
     out, _, result, _ = quick_run
     text = (out / "bench.json").read_text(encoding="utf-8")
@@ -238,6 +239,7 @@ def test_quick_run_writes_bench_json(quick_run):
     ]
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_reports_both_backends_and_the_jit(quick_run):
     _, _, result, lines = quick_run
     assert result["backend_default"] == "numba"
@@ -269,6 +271,7 @@ def test_quick_run_reports_both_backends_and_the_jit(quick_run):
     assert "frame ms numba 48x27: fixed" in summary
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_measures_the_tiled_post_on_workers(quick_run):
     w = quick_run[2]["workers"]
     if "skipped" in w:
@@ -278,6 +281,7 @@ def test_quick_run_measures_the_tiled_post_on_workers(quick_run):
     assert 0 < w["runs"]["1"]["halo_overhead"] < 10
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_measures_memory_in_subprocesses(quick_run):
     rss = quick_run[2]["peak_rss_mb"]
     assert [(r["method"], r["precision"]) for r in rss["rows"]] == [
@@ -293,6 +297,7 @@ def test_quick_run_measures_memory_in_subprocesses(quick_run):
     assert rss["second_frame_check"]["two_frames_mb"] is not None
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_writes_the_calibration_and_plots(quick_run):
     out, shipped, result, _ = quick_run
     cal = quality.load_calibration(out / "quality_calibration.json")
@@ -304,6 +309,7 @@ def test_quick_run_writes_the_calibration_and_plots(quick_run):
     assert all(_is_png(out / name) for name in result["plots"])
 
 
+@pytest.mark.slow  # the smoke run times a cold compile (about a minute): not in test-fast
 def test_quick_run_logs_progress_and_the_targets(quick_run):
     _, _, result, lines = quick_run
     assert any(line.startswith("[") and "pareto fixed N=1" in line for line in lines)
