@@ -191,3 +191,34 @@ def test_each_missed_ground_truth_target_says_why():
     assert "outer rim is +0.066 too" in reasons[1]
     assert "reaches 31.50 dB" in reasons[2] and "36.20 dB" in reasons[2]
     assert targets.truth_reasons(summary, extras, rows[3:]) == []
+
+
+def _users_extra(met_psnr: bool) -> dict:
+    """A what-you-had section's data: one PSNR target and one time target."""
+    target = {
+        "setting": "Cycles 16 spp + denoiser, Christensen-Burley (the materials' own)",
+        "target": "subsurface pixels >= plain + 1 dB",
+        "met": met_psnr,
+        "ours": 30.0,
+        "plain": 33.0,
+        "required": 34.0,
+        "why": [],
+    }
+    timing = {**target, "target": "time per frame <= 1.25 x plain", "met": False}
+    return {
+        "frames": [21, 22],
+        "describe": "Frames 21-22.",
+        "rows": [],
+        "targets": [target, timing],
+    }
+
+
+def test_a_missed_psnr_target_names_the_models_ceiling():
+    from cvsss.sss_addon.cli.demo.users import format_users_frame
+
+    reference = {"psnr_gt_db": 31.5, "psnr_gt_full_db": 33.25}
+    text = "\n".join(format_users_frame("flash", _users_extra(False), reference))
+    assert "31.50 dB from Cycles on subsurface pixels, 33.25 dB whole" in text
+    # Met PSNR targets (a missed time target alone) or no reference row: no such line.
+    assert "converged" not in "\n".join(format_users_frame("flash", _users_extra(True), reference))
+    assert "converged" not in "\n".join(format_users_frame("flash", _users_extra(False), None))

@@ -127,7 +127,8 @@ def write_report(
                 ]
         for scene, e in extras.items():
             if e.get("users_frame"):
-                lines += format_users_frame(scene, e["users_frame"])
+                reference = summary.get(scene, {}).get("reference")
+                lines += format_users_frame(scene, e["users_frame"], reference)
         for scene, e in extras.items():
             if e.get("quality"):
                 lines += [
