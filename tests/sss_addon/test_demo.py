@@ -218,7 +218,7 @@ def test_a_missed_psnr_target_names_the_models_ceiling():
 
     reference = {"psnr_gt_db": 31.5, "psnr_gt_full_db": 33.25}
     text = "\n".join(format_users_frame("flash", _users_extra(False), reference))
-    assert "31.50 dB from Cycles on subsurface pixels, 33.25 dB whole" in text
+    assert "31.50 dB PSNR against Cycles on subsurface pixels, 33.25 dB whole" in text
     # Met PSNR targets (a missed time target alone) or no reference row: no such line.
     assert "converged" not in "\n".join(format_users_frame("flash", _users_extra(True), reference))
     assert "converged" not in "\n".join(format_users_frame("flash", _users_extra(False), None))

@@ -101,9 +101,9 @@ def format_users_frame(scene: str, extra: dict, reference: dict | None = None) -
     """The report's section of one scene: the paragraph, the table, the targets.
 
     ``reference``: the scene's summary row of the ``reference`` method (its PSNR against
-    the ground truth); where a PSNR target is missed, the section says how far the
-    post's converged estimate itself is from Cycles, which no sample count or denoiser
-    closes.
+    the ground truth); where a PSNR target is missed, the section gives the PSNR the
+    post's converged estimate itself reaches against Cycles, a ceiling no sample count
+    or denoiser lifts.
     """
     frames = extra["frames"]
     lines = [
@@ -124,7 +124,8 @@ def format_users_frame(scene: str, extra: dict, reference: dict | None = None) -
             "",
             f"The post's converged estimate on this scene's raw passes (`reference`, 1024 "
             f'spp, over the ground-truth frames; the table "Against Cycles ground truth" '
-            f"above) is {sss:.2f} dB from Cycles on subsurface pixels, {whole:.2f} dB whole: "
-            "the screen-space model's distance, which no sample count or denoiser closes.",
+            f"above) reaches {sss:.2f} dB PSNR against Cycles on subsurface pixels, "
+            f"{whole:.2f} dB whole: the screen-space model's ceiling on this scene, which no "
+            "sample count or denoiser lifts.",
         ]
     return lines
