@@ -27,16 +27,12 @@ frame whose profile has no random-walk slot is returned unchanged, bit for bit.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from .frame import Frame
 from .geometry import Geometry, positions, surface
+from .profiles.base import Profile
 from .profiles.random_walk import mean_curvature
-
-if TYPE_CHECKING:
-    from .frame import Frame
-    from .profiles.base import Profile
 
 #: How far (pixels) the factor at a pixel reads the depth buffer: the curvature takes
 #: its neighbours' normals, each from their own neighbours.

@@ -29,20 +29,16 @@ slots (:func:`core.frame.compact_slots`): its subsurface materials numbered
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from .backends.twins import compiled_module, compiled_side, numpy_side
 from .frame import Frame, compact_slots, slot_keys
-
-if TYPE_CHECKING:
-    from collections.abc import Callable
-
-    from .profiles.base import Profile, Region
-
+from .profiles.base import Profile, Region
 
 #: Largest surface area of a pixel, in units of its fronto-parallel footprint (~83° tilt).
 MAX_TILT = 8.0

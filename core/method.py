@@ -10,16 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
+from .frame import Frame
 from .params import SeparableParams
-
-if TYPE_CHECKING:
-    from .frame import Frame
-    from .profiles.factory import ProfileChoice
-    from .result import FrameResult
+from .profiles.factory import ProfileChoice
+from .result import FrameResult
 
 #: XOR salt giving the reference its own random stream.
 REFERENCE_SALT = 0x9E3779B9

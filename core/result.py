@@ -10,16 +10,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .backends.twins import compiled_module, compiled_side, numpy_side
-from .geometry import take_rows
-
-if TYPE_CHECKING:
-    from .frame import Frame
-    from .geometry import Geometry
+from .frame import Frame
+from .geometry import Geometry, take_rows
 
 _BIG = float(np.finfo(np.float32).max)
 

@@ -13,6 +13,7 @@ import numpy as np
 from ..backends import select as mc_backend
 from ..eval import quality
 from ..frame import Frame
+from ..io.exr import list_frames, read_frame
 from ..method import MethodOptions
 from ..methods import METHODS, make_processor
 from ..params import KERNELS, PAPER_DEFAULTS, SeparableParams, SSSParams
@@ -73,8 +74,6 @@ def section_pareto(
     """Pareto points, the quality calibration and the quality checks."""
     base = SSSParams(seed=cfg.seed)
     if passes is not None:
-        from ..io.exr import list_frames, read_frame
-
         listed = list_frames(passes)[: cfg.warmup + cfg.pareto_frames]
         frames = [read_frame(p, number=n) for n, p in listed]
         scene = f"pass directory {passes}"

@@ -22,6 +22,8 @@ from ..params import SeparableParams, SSSParams
 from ..profiles.base import Profile
 from ..profiles.factory import ProfileCache
 from ..result import FrameResult, assemble
+from ..separable.apply import apply
+from ..separable.kernels import build_kernels
 from . import adaptive, temporal
 from .estimator import estimate_distant
 from .history import History
@@ -250,9 +252,6 @@ class MonteCarloProcessor:
     ) -> np.ndarray:
         """(P, 3) the separable estimate of the distant integral: the noise-free proxy
         (the separable estimate of L less ``near``, (1 − γ)·B)."""
-        from ..separable.apply import apply
-        from ..separable.kernels import build_kernels
-
         if self._proxy_kernels is None or self._proxy_kernels[0] is not profile:
             self._proxy_kernels = (profile, build_kernels(profile, PROXY_KERNEL))
         # The separable passes read each other's intermediate results: on a tile

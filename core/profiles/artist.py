@@ -42,7 +42,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .base import Profile, Region
-from .radial import GRID, RadialModel, discretize, fit_gaussians, gaussian_radial_cdf
+from .radial import GRID, RadialModel, discretize, fit_gaussians, gaussian_radial_cdf, radial_model
 
 #: r_max = KEEP_SIGMAS·σ_far keeps 99.7 % of the far Gaussian: sqrt(−2 ln 0.003).
 KEEP_SIGMAS = math.sqrt(-2.0 * math.log(0.003))
@@ -274,8 +274,6 @@ def distant_mean(
     mat = np.array([slot], dtype=np.int32)
     region = profile.region(np.array([r0], dtype=np.float64), mat)
     gamma = region.gamma[0]
-    from .radial import radial_model
-
     rmax = float(np.max(radial_model(profile, slot).rmax))
     if gamma.max() <= 0 or rmax <= r0:
         return gamma, lighting(np.zeros(1), np.zeros(1))[0]
