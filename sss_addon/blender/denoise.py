@@ -108,12 +108,10 @@ def tree_copy(tree, socket):
     return node.outputs[0]
 
 
-def _build_tree(tree, image, layer: str, passes: list[str], folder: Path) -> None:
-    """Image → Denoise per pass → File Output (multilayer EXR, items named after the passes)."""
-    source = tree.nodes.new("CompositorNodeImage")
-    source.image = image
-    if layer in {item.identifier for item in source.bl_rna.properties["layer"].enum_items}:
-        source.layer = layer
+def denoised_file_output(tree, folder: Path | str, codec: str):
+    """A File Output node of ``tree`` writing ``folder``/denoised####.exr: a 32-bit
+    multilayer EXR of linear data (no view transform), compressed with ``codec``; the
+    caller adds its items."""
     out = tree.nodes.new("CompositorNodeOutputFile")
     out.directory = str(folder)
     out.file_name = "denoised"
@@ -123,7 +121,17 @@ def _build_tree(tree, image, layer: str, passes: list[str], folder: Path) -> Non
         fmt.media_type = "MULTI_LAYER_IMAGE"
     fmt.file_format = "OPEN_EXR_MULTILAYER"
     fmt.color_depth = "32"
-    fmt.exr_codec = "ZIP"
+    fmt.exr_codec = codec
+    return out
+
+
+def _build_tree(tree, image, layer: str, passes: list[str], folder: Path) -> None:
+    """Image → Denoise per pass → File Output (multilayer EXR, items named after the passes)."""
+    source = tree.nodes.new("CompositorNodeImage")
+    source.image = image
+    if layer in {item.identifier for item in source.bl_rna.properties["layer"].enum_items}:
+        source.layer = layer
+    out = denoised_file_output(tree, folder, "ZIP")
     outputs = source.outputs
     guides = {name: tree_copy(tree, outputs[f"Denoising {name}"]) for name in ("Albedo", "Normal")}
     for name in passes:

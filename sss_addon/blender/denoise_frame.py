@@ -47,7 +47,7 @@ import OpenEXR
 
 from ...core.io.errors import OutputError
 from ...core.io.exr import quiet_native_stderr, use_threads
-from .denoise import tree_copy
+from .denoise import denoised_file_output, tree_copy
 from .errors import RenderError
 from .internal_renders import internal_render
 
@@ -239,16 +239,7 @@ def denoise_frame(
         denoise.inputs["HDR"].default_value = True
         denoise.inputs["Prefilter"].default_value = PREFILTER[settings.prefilter]
         denoise.inputs["Quality"].default_value = QUALITY[settings.quality]
-        out = tree.nodes.new("CompositorNodeOutputFile")
-        out.directory = folder
-        out.file_name = "denoised"
-        out.save_as_render = False  # linear data, no view transform
-        fmt = out.format
-        if hasattr(fmt, "media_type"):
-            fmt.media_type = "MULTI_LAYER_IMAGE"
-        fmt.file_format = "OPEN_EXR_MULTILAYER"
-        fmt.color_depth = "32"
-        fmt.exr_codec = "NONE"
+        out = denoised_file_output(tree, folder, "NONE")
         out.file_output_items.new("RGBA", "F")
         tree.links.new(denoise.outputs["Image"], out.inputs["F"])
         with internal_render():
