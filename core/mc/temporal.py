@@ -260,6 +260,15 @@ def _reuse(
     return out, n_new
 
 
+def _mode_code(passes, mode: str) -> int:
+    """The compiled passes' code of a ``temporal_mode`` (plain, subtractive, multiplicative)."""
+    return {
+        "plain": passes.PLAIN,
+        "subtractive": passes.SUBTRACTIVE,
+        "multiplicative": passes.MULTIPLICATIVE,
+    }[mode]
+
+
 def _history_in_place(hist, geom, *_args, mode, **_kwargs) -> bool:
     """``supports`` of :func:`_reuse_compiled`: the buffers of ``mode`` are float32, stored
     unscaled, and compiled passes can read and write them in place
@@ -282,11 +291,7 @@ def _reuse_compiled(
     passes = compiled_module("temporal")
     p = geom.size
     f64 = np.float64
-    code = {
-        "plain": passes.PLAIN,
-        "subtractive": passes.SUBTRACTIVE,
-        "multiplicative": passes.MULTIPLICATIVE,
-    }[mode]
+    code = _mode_code(passes, mode)
     none3 = np.zeros((0, 3))
     idx = np.ascontiguousarray(geom.index)
     table = _neighbour_table(geom)
@@ -402,11 +407,7 @@ def _step_compiled(
     passes = compiled_module("temporal")
     p = geom.size
     f64 = np.float64
-    code = {
-        "plain": passes.PLAIN,
-        "subtractive": passes.SUBTRACTIVE,
-        "multiplicative": passes.MULTIPLICATIVE,
-    }[mode]
+    code = _mode_code(passes, mode)
     none3 = np.zeros((0, 3))
     shift, value = np.empty((p, 3)), np.empty((p, 3))
     n_cut = np.empty(p)
