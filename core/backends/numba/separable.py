@@ -14,8 +14,11 @@ from .common import _M32, _ONE, _TWO, _pcg3d_xy
 #: Pixels per parallel task of the separable passes.
 _ROW_TASK = 1024
 _INV_2_32_F32 = np.float32(2.0**-32)
-#: Pixels that go through each tap of a separable pass together (see _separable_pass).
-_SEP_BLOCK = 16
+#: Pixels that go through each tap of a separable pass together (see _separable_pass):
+#: 32 rather than 16, the same bits in 5-11 % less time per frame's passes
+#: (docs/checks/separable_pass.py, docs/performance.md); 8 took three times as long
+#: (stage 2 then runs scalar), 64 longer than 16.
+_SEP_BLOCK = 32
 #: Rows of a block's float32 buffer (each _SEP_BLOCK long): the centre's value, the sums
 #: of the first RGB group, scale, depth, coordinate along the pass, −1/(2τ); and per tap
 #: the offset (scene units), the linear read's fraction, the depth read at each of the
