@@ -128,10 +128,11 @@ def _start_channel(d, ctl, a, prox, ctl_prev, prox_prev, e, mode, switch):
         val = d
     delta = 0.0
     if mode != PLAIN:
-        d_ctl = np.log(ctl + e) - np.log(_pos(ctl_prev) + e)
+        ctl_ratio = (ctl + e) / (_pos(ctl_prev) + e)
+        d_ctl = np.log(ctl_ratio)
         if mode == MULTIPLICATIVE:
-            d_prox = np.log(sh) - np.log(_pos(prox_prev) + e)
-            delta = abs(d_prox - d_ctl) + switch * abs(d_ctl)
+            prox_ratio = sh / (_pos(prox_prev) + e)
+            delta = abs(np.log(prox_ratio / ctl_ratio)) + switch * abs(d_ctl)
         else:
             delta = abs(d_ctl)
     return sh, val, delta
