@@ -75,6 +75,13 @@ def _storage(dtype: str) -> np.dtype:
     return np.dtype(np.float16 if dtype == "float16" else np.float32)
 
 
+def _still(motion: np.ndarray | None) -> bool:
+    """Every pixel is its own source: no motion, or less than half a pixel everywhere
+    (the rounded source is then the pixel itself; a still camera's motion pass holds
+    such tiny values; NaN is not still)."""
+    return motion is None or bool(motion.max() < 0.5 and motion.min() > -0.5)
+
+
 def _block(buffers: list[np.ndarray], shape: tuple[int, int], dtype: np.dtype) -> np.ndarray:
     """(F, H, W): the F buffers as the rows of one C-contiguous array: the array they
     are the rows of, in order (as :meth:`History.empty` and the compiled reprojection
@@ -320,6 +327,7 @@ class History:
         depth: np.ndarray,
         material: np.ndarray,
         backend: str = "numpy",
+        in_place: bool = False,
     ) -> History:
         """History aligned with the current frame.
 
@@ -338,12 +346,20 @@ class History:
             passes are float32 and integer, as a Frame holds them) the mapping and
             the fetches are compiled passes with the same arithmetic
             (:meth:`_reproject_compiled`): the same history
+        in_place : bool
+            Where every pixel is its own source (``motion`` None or below half a
+            pixel everywhere: a still camera), align ``self`` and return it, the buffers not copied: only the
+            pixels whose surface changed are reset. For a caller that owns the
+            history: nothing else may hold its arrays (a state from
+            :meth:`to_arrays`, say).
 
         Returns
         -------
-        History (a new object; ``self`` is unchanged).
+        History (a new object, ``self`` unchanged; or ``self``, see ``in_place``).
         """
         self._check_shape(depth)
+        if in_place and _still(motion):
+            return self._align_in_place(self._surface_kept(depth, material), depth, material)
         h, w = self.shape
         if motion is None:
             src = np.arange(h * w)
@@ -388,6 +404,28 @@ class History:
             material,
         )
 
+    def _surface_kept(self, depth: np.ndarray, material: np.ndarray) -> np.ndarray:
+        """(H, W) bool: each pixel's surface is the one it held (same slot, depth
+        within the tolerance): :meth:`reproject`'s test with every pixel its own source."""
+        prev_depth = self.depth.astype(np.float64)
+        cur_depth = np.asarray(depth).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            close = np.abs(prev_depth - cur_depth) <= REPROJECT_DEPTH_TOLERANCE * cur_depth
+        return (self.material == np.asarray(material)) & close
+
+    def _align_in_place(self, same: np.ndarray, depth, material) -> History:
+        """``self`` aligned where each pixel is its own source (:meth:`reproject` with
+        ``in_place``): the reset buffers and the masks cleared where ``same`` is False,
+        the current depth and slots kept."""
+        for name in RESET_FIELDS:
+            if name in self.buffers:
+                np.putmask(self.buffers[name], ~same, 0)
+        self.valid &= same
+        self.cv_valid &= same
+        self.material[...] = material
+        self.depth[...] = depth
+        return self
+
     def _aligned(self, buffers, valid, cv_valid, depth, material) -> History:
         """The reprojected history: these buffers and masks, the current depth and slots."""
         return History(
@@ -410,7 +448,7 @@ class History:
                 f"{depth.shape[1]}x{depth.shape[0]}"
             )
 
-    def _frame_dtypes(self, motion, depth, material, backend="numpy") -> bool:
+    def _frame_dtypes(self, motion, depth, material, backend="numpy", in_place=False) -> bool:
         """``supports`` of the compiled reprojection: the passes' Frame dtypes, and
         buffers of the storage dtype and the image's shape."""
         return (
@@ -422,11 +460,19 @@ class History:
         )
 
     @compiled_side("reproject", supports=_frame_dtypes)
-    def _reproject_compiled(self, motion, depth, material, backend="numpy") -> History:
+    def _reproject_compiled(
+        self, motion, depth, material, backend="numpy", in_place=False
+    ) -> History:
         """:meth:`reproject` as one compiled pass over the pixels: the source pixels, and
         every buffer and mask fetched (the same history). The new buffers are the rows
-        of one array, as :meth:`empty` makes them."""
+        of one array, as :meth:`empty` makes them. In place, one pass that tests each
+        pixel's surface and clears what :meth:`_align_in_place` clears."""
         self._check_shape(depth)
+        if in_place and _still(motion):
+            same = compiled_module("history").surface_kept(
+                depth, material, self.depth, self.material, REPROJECT_DEPTH_TOLERANCE
+            )
+            return self._align_in_place(same, depth, material)
         names = list(self.buffers)
         block = _block(list(self.buffers.values()), self.shape, self.dtype)
         reset = np.array([name in RESET_FIELDS for name in names], dtype=bool)

@@ -80,18 +80,24 @@ class MonteCarloProcessor:
         self.options = options
         self.profiles = ProfileCache(params, options.profile)
         self.history: History | None = None
+        # Whether arrays of self.history are held outside (state() hands them out):
+        # the next reprojection then makes a new history rather than align it in place.
+        self._shared = False
         self._proxy_kernels: tuple[Profile, dict] | None = None
         self._geometry = GeometryCache()
 
     # -- state ------------------------------------------------------------------------
     def state(self) -> dict[str, np.ndarray]:
-        """The history as named arrays (empty before the first adaptive frame)."""
+        """The history as named arrays (empty before the first adaptive frame): its
+        own arrays, which the next frame then leaves alone."""
+        self._shared = True
         return {} if self.history is None else self.history.to_arrays("h_")
 
     def restore(self, state: Mapping[str, np.ndarray]) -> None:
         """Continue from :meth:`state` (a state read from a file is checked first, with
         :func:`check_state`: ``core.run.SequenceRun`` does so for checkpoints)."""
         self.history = History.from_arrays(state, "h_") if "h_meta" in state else None
+        self._shared = False  # from_arrays copies
 
     # -- the frame step -----------------------------------------------------------------
     def _counts(self, geom: Geometry, hist: History | None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +138,12 @@ class MonteCarloProcessor:
                 f"frame {frame.number} is {frame.shape[1]}x{frame.shape[0]} but the "
                 f"sequence started at {self.history.shape[1]}x{self.history.shape[0]}"
             )
-        return self.history.reproject(frame.motion, frame.depth, frame.material, backend=p.backend)
+        # A still camera's history is aligned in place (no copy of its buffers) unless
+        # a state handed out holds its arrays.
+        in_place, self._shared = not self._shared, False
+        return self.history.reproject(
+            frame.motion, frame.depth, frame.material, backend=p.backend, in_place=in_place
+        )
 
     def process(self, frame: Frame, counts: np.ndarray | None = None) -> FrameResult:
         """Post-process one frame.

@@ -9,7 +9,7 @@ import numpy as np
 
 from ...sampling.qmc import DIRECTIONS
 from .adaptive import spvg_counts, spvg_update
-from .history import _history_pass, read_column, reproject, write_column
+from .history import _history_pass, read_column, reproject, surface_kept, write_column
 from .image import _composite_pass, _float_image_pass, row_sums
 from .region import _region
 from .sampling import (
@@ -81,6 +81,8 @@ def compile_all(pixels: int | None = None) -> None:
             key = np.zeros((1, 1), slots)
             block = np.zeros((2, 1, 1), dtype)
             reproject(None, plane, key, plane, key, 0.1, block, np.ones(2, bool), mask, mask)
+    for slots in (np.int32, np.int64):  # a still camera's reprojection in place
+        surface_kept(plane, np.zeros((1, 1), slots), plane, np.zeros((1, 1), slots), 0.1)
     read_column(one32, at, 1.0, g3, 0)
     write_column(g3, 0, at, 1.0, one32.copy())
     # The separable passes (the separable method, the temporal proxy) and the temporal

@@ -261,6 +261,38 @@ def reproject(
     return out, valid_out, cv_out
 
 
+def surface_kept(depth, material, prev_depth, prev_material, tolerance):
+    """(H, W) bool: each pixel's surface is the one it held, the reprojection's test
+    with every pixel its own source (core.mc.history.History._surface_kept: the same
+    float64 arithmetic), in one parallel pass.
+
+    Parameters
+    ----------
+    depth, prev_depth : (H, W) float32; material, prev_material : (H, W) int
+    tolerance : float, relative depth change still accepted
+    """
+    narrow = material.dtype == np.int32 and prev_material.dtype == np.int32
+    slots = np.int32 if narrow else np.int64
+    out = np.empty(depth.shape, np.bool_)
+    _surface_kept_pass(
+        np.ascontiguousarray(depth).reshape(-1),
+        np.ascontiguousarray(material, slots).reshape(-1),
+        np.ascontiguousarray(prev_depth).reshape(-1),
+        np.ascontiguousarray(prev_material, slots).reshape(-1),
+        float(tolerance),
+        out.reshape(-1),
+    )
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _surface_kept_pass(depth, material, prev_depth, prev_material, tol, out):
+    for i in numba.prange(depth.shape[0]):
+        prev = np.float64(prev_depth[i])
+        cur = np.float64(depth[i])
+        out[i] = prev_material[i] == material[i] and abs(prev - cur) <= tol * cur
+
+
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _source(i, flow, has_motion, w, h):
     """(flat source pixel, on screen) of pixel i moved by its motion vector."""

@@ -452,7 +452,7 @@ def history_read_cases() -> list[Case]:
 
 
 def reproject_cases() -> list[Case]:
-    def make(precision, moving, separate=False):
+    def make(precision, moving, separate=False, in_place=False):
         def build(backend):
             rng = np.random.default_rng(11)
             shape = (23, 37)
@@ -474,7 +474,10 @@ def reproject_cases() -> list[Case]:
                 motion = rng.normal(0, 4, (*shape, 2)).astype(np.float32)
                 motion[::5] = np.round(motion[::5] * 2) / 2  # ties: x.5
                 motion[1, :4] = [[np.nan, 0], [np.inf, 1], [-np.inf, 1], [1e30, -1e30]]
-            return (hist, motion, depth, material), {"backend": backend}
+            elif in_place:  # a still camera's motion pass: zeros, and tiny values
+                motion = np.zeros((*shape, 2), np.float32)
+                motion[::3] = rng.uniform(-0.49, 0.49, (motion[::3].shape))
+            return (hist, motion, depth, material), {"backend": backend, "in_place": in_place}
 
         def check(a, b, *_):
             for name in ("valid", "cv_valid", "material", "depth"):
@@ -488,10 +491,11 @@ def reproject_cases() -> list[Case]:
             assert (a.buffers["acc_n"] == 0).sum() > (a.buffers["mu"] == 0).sum()
 
         label = f"{precision}-{'moving' if moving else 'still'}{'-separate' if separate else ''}"
-        return Case(label, build, check)
+        return Case(label + ("-in-place" if in_place else ""), build, check)
 
     cases = [make(p, m) for p in ("float16", "float32") for m in (True, False)]
-    return [*cases, make("float32", True, separate=True)]
+    in_place = [make(p, m, in_place=True) for p in ("float16", "float32") for m in (True, False)]
+    return [*cases, *in_place, make("float32", True, separate=True)]
 
 
 # -- the temporal reuse --------------------------------------------------------------------
