@@ -348,10 +348,10 @@ class History:
             (:meth:`_reproject_compiled`): the same history
         in_place : bool
             Where every pixel is its own source (``motion`` None or below half a
-            pixel everywhere: a still camera), align ``self`` and return it, the buffers not copied: only the
-            pixels whose surface changed are reset. For a caller that owns the
-            history: nothing else may hold its arrays (a state from
-            :meth:`to_arrays`, say).
+            pixel everywhere: a still camera), align ``self`` and return it, its
+            buffers not copied: only the pixels whose surface changed are reset.
+            For a caller that owns the history: nothing else may hold its arrays
+            (a state from :meth:`to_arrays`, say).
 
         Returns
         -------
@@ -465,8 +465,9 @@ class History:
     ) -> History:
         """:meth:`reproject` as one compiled pass over the pixels: the source pixels, and
         every buffer and mask fetched (the same history). The new buffers are the rows
-        of one array, as :meth:`empty` makes them. In place, one pass that tests each
-        pixel's surface and clears what :meth:`_align_in_place` clears."""
+        of one array, as :meth:`empty` makes them. In place, the surface test is one
+        compiled pass (:meth:`_surface_kept`'s arithmetic), then
+        :meth:`_align_in_place`."""
         self._check_shape(depth)
         if in_place and _still(motion):
             same = compiled_module("history").surface_kept(
