@@ -82,6 +82,19 @@ def _still(motion: np.ndarray | None) -> bool:
     return motion is None or bool(motion.max() < 0.5 and motion.min() > -0.5)
 
 
+def _same_surface(prev_depth, prev_material, depth, material) -> np.ndarray:
+    """(H·W,) bool: each pixel's surface is the one its source held: the same slot, and
+    the depth changed by at most :data:`REPROJECT_DEPTH_TOLERANCE` (relative, in
+    float64; NaN or infinite depth never matches). ``prev_depth``, ``prev_material``:
+    the source's, read at each pixel (the history's own arrays where each pixel is its
+    own source)."""
+    prev = np.asarray(prev_depth).reshape(-1).astype(np.float64)
+    cur = np.asarray(depth).reshape(-1).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        close = np.abs(prev - cur) <= REPROJECT_DEPTH_TOLERANCE * cur
+    return (np.asarray(prev_material).reshape(-1) == np.asarray(material).reshape(-1)) & close
+
+
 def _block(buffers: list[np.ndarray], shape: tuple[int, int], dtype: np.dtype) -> np.ndarray:
     """(F, H, W): the F buffers as the rows of one C-contiguous array: the array they
     are the rows of, in order (as :meth:`History.empty` and the compiled reprojection
@@ -359,7 +372,8 @@ class History:
         """
         self._check_shape(depth)
         if in_place and _still(motion):
-            return self._align_in_place(self._surface_kept(depth, material), depth, material)
+            same = _same_surface(self.depth, self.material, depth, material)
+            return self._align_in_place(same.reshape(self.shape), depth, material)
         h, w = self.shape
         if motion is None:
             src = np.arange(h * w)
@@ -375,11 +389,9 @@ class History:
             py = np.rint(np.clip(np.where(finite, fy, -1.0), -1.0, h)).astype(np.int64)
             inside = finite & (px >= 0) & (px < w) & (py >= 0) & (py < h)
             src = np.where(inside, py * w + px, 0)
-        prev_depth = self.depth.reshape(-1)[src].astype(np.float64)
-        cur_depth = depth.reshape(-1).astype(np.float64)
-        with np.errstate(invalid="ignore"):
-            close = np.abs(prev_depth - cur_depth) <= REPROJECT_DEPTH_TOLERANCE * cur_depth
-        same = inside & (self.material.reshape(-1)[src] == material.reshape(-1)) & close
+        prev_depth = self.depth.reshape(-1)[src]
+        prev_material = self.material.reshape(-1)[src]
+        same = inside & _same_surface(prev_depth, prev_material, depth, material)
         outside = ~inside
 
         def fetch(buffer: np.ndarray) -> np.ndarray:
@@ -403,15 +415,6 @@ class History:
             depth,
             material,
         )
-
-    def _surface_kept(self, depth: np.ndarray, material: np.ndarray) -> np.ndarray:
-        """(H, W) bool: each pixel's surface is the one it held (same slot, depth
-        within the tolerance): :meth:`reproject`'s test with every pixel its own source."""
-        prev_depth = self.depth.astype(np.float64)
-        cur_depth = np.asarray(depth).astype(np.float64)
-        with np.errstate(invalid="ignore"):
-            close = np.abs(prev_depth - cur_depth) <= REPROJECT_DEPTH_TOLERANCE * cur_depth
-        return (self.material == np.asarray(material)) & close
 
     def _align_in_place(self, same: np.ndarray, depth, material) -> History:
         """``self`` aligned where each pixel is its own source (:meth:`reproject` with
@@ -466,7 +469,7 @@ class History:
         """:meth:`reproject` as one compiled pass over the pixels: the source pixels, and
         every buffer and mask fetched (the same history). The new buffers are the rows
         of one array, as :meth:`empty` makes them. In place, the surface test is one
-        compiled pass (:meth:`_surface_kept`'s arithmetic), then
+        compiled pass (:func:`_same_surface`'s arithmetic), then
         :meth:`_align_in_place`."""
         self._check_shape(depth)
         if in_place and _still(motion):

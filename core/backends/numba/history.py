@@ -233,9 +233,7 @@ def reproject(
     h, w = depth.shape
     n = h * w
     flow = np.zeros((0, 2), np.float32) if motion is None else motion.reshape(n, 2)
-    # Slots compared as int32 where both are (a Frame's and a History's are), else int64.
-    narrow = material.dtype == np.int32 and prev_material.dtype == np.int32
-    slots = np.int32 if narrow else np.int64
+    slots = _slot_dtype(material, prev_material)
     bits = _BITS[block.dtype.itemsize]
     out = np.empty(block.shape, block.dtype)
     valid_out = np.empty((h, w), np.bool_)
@@ -261,18 +259,31 @@ def reproject(
     return out, valid_out, cv_out
 
 
+def _slot_dtype(material, prev_material):
+    """Slots compared as int32 where both are (a Frame's and a History's are), else int64."""
+    narrow = material.dtype == np.int32 and prev_material.dtype == np.int32
+    return np.int32 if narrow else np.int64
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _same_surface(depth, material, prev_depth, prev_material, i, s, tol):
+    """Pixel i's surface is the one its source s held (core.mc.history._same_surface:
+    the same slot, the float64 relative depth test)."""
+    prev = np.float64(prev_depth[s])
+    cur = np.float64(depth[i])
+    return prev_material[s] == material[i] and abs(prev - cur) <= tol * cur
+
+
 def surface_kept(depth, material, prev_depth, prev_material, tolerance):
     """(H, W) bool: each pixel's surface is the one it held, the reprojection's test
-    with every pixel its own source (core.mc.history.History._surface_kept: the same
-    float64 arithmetic), in one parallel pass.
+    with every pixel its own source (:func:`_same_surface`), in one parallel pass.
 
     Parameters
     ----------
     depth, prev_depth : (H, W) float32; material, prev_material : (H, W) int
     tolerance : float, relative depth change still accepted
     """
-    narrow = material.dtype == np.int32 and prev_material.dtype == np.int32
-    slots = np.int32 if narrow else np.int64
+    slots = _slot_dtype(material, prev_material)
     out = np.empty(depth.shape, np.bool_)
     _surface_kept_pass(
         np.ascontiguousarray(depth).reshape(-1),
@@ -288,9 +299,7 @@ def surface_kept(depth, material, prev_depth, prev_material, tolerance):
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _surface_kept_pass(depth, material, prev_depth, prev_material, tol, out):
     for i in numba.prange(depth.shape[0]):
-        prev = np.float64(prev_depth[i])
-        cur = np.float64(depth[i])
-        out[i] = prev_material[i] == material[i] and abs(prev - cur) <= tol * cur
+        out[i] = _same_surface(depth, material, prev_depth, prev_material, i, i, tol)
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -326,9 +335,7 @@ def _reproject_pass(
         same = np.empty(end - start, np.bool_)
         for i in range(start, end):
             s, ok = _source(i, flow, has_motion, w, h)
-            prev = np.float64(prev_depth[s])
-            cur = np.float64(depth[i])
-            match = ok and prev_material[s] == material[i] and abs(prev - cur) <= tol * cur
+            match = ok and _same_surface(depth, material, prev_depth, prev_material, i, s, tol)
             src[i - start] = s
             inside[i - start] = ok
             same[i - start] = match
