@@ -10,11 +10,14 @@ import OpenEXR
 from ...core.io.exr import use_threads
 
 
-def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]) -> None:
+def rewrite_exr(
+    path: Path, edit: Callable[[str, dict], tuple[str, dict] | None], write: bool = True
+) -> None:
     """Rewrite a multilayer EXR in place, part by part, keeping every header.
 
     ``edit(part name, {channel: pixels})`` returns the part's new name and
-    channels, or None to drop the part.
+    channels, or None to drop the part. With ``write`` False the parts are only
+    handed to ``edit`` (to read several before rewriting any).
     """
     use_threads()
     exr = OpenEXR.File(str(path), separate_channels=True)
@@ -26,4 +29,5 @@ def rewrite_exr(path: Path, edit: Callable[[str, dict], tuple[str, dict] | None]
         edited = edit(part.name(), channels)
         if edited is not None:
             parts.append(OpenEXR.Part(header, edited[1], edited[0]))
-    OpenEXR.File(parts).write(str(path))
+    if write:
+        OpenEXR.File(parts).write(str(path))

@@ -19,10 +19,11 @@ EEVEE has no Material Index or Object Index pass (nor Diffuse Indirect: its
 Diffuse Light is written as Diffuse Direct). For EEVEE the slot and the
 object's number are written by AOV Output nodes added to each participating
 material (value AOVs ``cvsss_material`` and ``cvsss_object``, the latter
-from an Object Info node), and the EXR is rewritten after the render so that
-they become the ``Material Index`` and ``Object Index`` passes (rounded:
-EEVEE filters AOVs) and the background depth, which EEVEE writes as the clip
-end, becomes 1e10 as in Cycles.
+from an Object Info node, and ``cvsss_cover``, 1), and the EXR is rewritten
+after the render so that they become the ``Material Index`` and ``Object
+Index`` passes (EEVEE filters AOVs: :func:`eevee_labels` reads one surface's
+labels out of an edge pixel's mix) and the background depth, which EEVEE
+writes as the clip end, becomes 1e10 as in Cycles.
 """
 
 from __future__ import annotations
@@ -193,12 +194,18 @@ AOV_NAME = "cvsss_material"
 #: Value AOV that carries the object's number when the engine has no Object Index pass.
 OBJECT_AOV = "cvsss_object"
 
+#: Colour AOV (1, slot², object number²) on participating materials: with it, a pixel
+#: EEVEE's filter mixed from several surfaces is told from one surface's
+#: (:func:`eevee_labels`).
+COVER_AOV = "cvsss_cover"
+
 #: Value AOV that carries a linked (textured) Subsurface Weight per pixel.
 WEIGHT_AOV = "cvsss_weight"
 
 #: Version of the pass set this module renders (2: with the Object Index pass); the
-#: demo renders its passes again when it changes.
-PASS_FORMAT = 2
+#: demo renders its passes again when it changes; 3: EEVEE's mixed edge pixels are
+#: not labelled).
+PASS_FORMAT = 3
 
 NEEDED_PASSES = (
     "use_pass_combined",
@@ -351,6 +358,7 @@ class PassSetup(SceneSetup):
         self._sss: sss_materials.SSSDisabled | None = None
         self._aov = None
         self._object_aov = None
+        self._cover_aov = None
         self._weight_aov = None
         self._aov_nodes: list[tuple[object, str]] = []
 
@@ -418,27 +426,48 @@ class PassSetup(SceneSetup):
             tree.links.new(from_socket, node.inputs["Value"])
 
     def _add_material_aov(self) -> None:
-        """EEVEE: write each material's slot to the value AOV ``cvsss_material`` and its
-        object's Pass Index to ``cvsss_object``."""
+        """EEVEE: write each material's slot to the value AOV ``cvsss_material``, its
+        object's Pass Index to ``cvsss_object`` and (1, slot², index²) to the colour
+        AOV ``cvsss_cover`` (:func:`eevee_labels`)."""
         layer = self.view_layer
-        for name, attr in ((AOV_NAME, "_aov"), (OBJECT_AOV, "_object_aov")):
+        aovs = (
+            (AOV_NAME, "_aov", "VALUE"),
+            (OBJECT_AOV, "_object_aov", "VALUE"),
+            (COVER_AOV, "_cover_aov", "COLOR"),
+        )
+        for name, attr, kind in aovs:
             if not any(aov.name == name for aov in layer.aovs):
                 aov = layer.aovs.add()
                 aov.name = name
-                aov.type = "VALUE"
+                aov.type = kind
                 setattr(self, attr, aov)
+
+        def new(tree, kind: str):
+            node = tree.nodes.new(kind)
+            self._aov_nodes.append((tree, node.name))
+            return node
+
         for slot, material in enumerate(self.materials, 1):
             tree = material.node_tree
-            node = tree.nodes.new("ShaderNodeOutputAOV")
-            self._aov_nodes.append((tree, node.name))
+            node = new(tree, "ShaderNodeOutputAOV")
             node.aov_name = AOV_NAME
             node.inputs["Value"].default_value = float(slot)
-            info = tree.nodes.new("ShaderNodeObjectInfo")
-            self._aov_nodes.append((tree, info.name))
-            node = tree.nodes.new("ShaderNodeOutputAOV")
-            self._aov_nodes.append((tree, node.name))
+            info = new(tree, "ShaderNodeObjectInfo")
+            node = new(tree, "ShaderNodeOutputAOV")
             node.aov_name = OBJECT_AOV
             tree.links.new(info.outputs["Object Index"], node.inputs["Value"])
+            square = new(tree, "ShaderNodeMath")
+            square.operation = "MULTIPLY"
+            tree.links.new(info.outputs["Object Index"], square.inputs[0])
+            tree.links.new(info.outputs["Object Index"], square.inputs[1])
+            combine = new(tree, "ShaderNodeCombineColor")
+            combine.mode = "RGB"
+            combine.inputs["Red"].default_value = 1.0
+            combine.inputs["Green"].default_value = float(slot * slot)
+            tree.links.new(square.outputs["Value"], combine.inputs["Blue"])
+            node = new(tree, "ShaderNodeOutputAOV")
+            node.aov_name = COVER_AOV
+            tree.links.new(combine.outputs["Color"], node.inputs["Color"])
 
     def restore(self) -> None:
         """Put back everything saved so far (safe to call more than once)."""
@@ -447,7 +476,7 @@ class PassSetup(SceneSetup):
             if node is not None:
                 tree.nodes.remove(node)
         self._aov_nodes = []
-        for name in ("_aov", "_object_aov", "_weight_aov"):
+        for name in ("_aov", "_object_aov", "_cover_aov", "_weight_aov"):
             aov = getattr(self, name)
             if aov is not None:
                 self.view_layer.aovs.remove(aov)
@@ -664,17 +693,37 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
     """Rewrite an EEVEE pass EXR in place so it reads like a Cycles one.
 
     The value AOVs ``<layer>.cvsss_material`` and ``<layer>.cvsss_object`` become
-    ``<layer>.Material Index`` and ``<layer>.Object Index`` (rounded to whole
-    numbers) and depths at the clip end become 1e10.
+    ``<layer>.Material Index`` and ``<layer>.Object Index`` (:func:`eevee_labels`),
+    ``<layer>.cvsss_cover`` is dropped and depths at the clip end become 1e10.
     """
-    names = []
+    aovs = {f"{layer}.{n}": n for n in (AOV_NAME, OBJECT_AOV, COVER_AOV)}
+    read = {}
+
+    def collect(name: str, channels: dict) -> None:
+        if aovs.get(name) == COVER_AOV:
+            read[COVER_AOV] = [channels[f"{name}.{c}"] for c in "RGB"]
+        elif name in aovs:
+            (read[aovs[name]],) = channels.values()
+
+    rewrite_exr(path, collect, write=False)
+    for name, what in (
+        (AOV_NAME, "material index"),
+        (OBJECT_AOV, "object index"),
+        (COVER_AOV, "cover"),
+    ):
+        if name not in read:
+            raise OutputError(path, f"the engine wrote no '{name}' AOV for the {what}")
+    material, objects = eevee_labels(read[AOV_NAME], read[OBJECT_AOV], *read[COVER_AOV])
+    labels = {AOV_NAME: material, OBJECT_AOV: objects}
     renamed = {f"{layer}.{AOV_NAME}": "Material Index", f"{layer}.{OBJECT_AOV}": "Object Index"}
 
-    def edit(name: str, channels: dict) -> tuple[str, dict]:
+    def edit(name: str, channels: dict) -> tuple[str, dict] | None:
+        if name == f"{layer}.{COVER_AOV}":
+            return None
         if name in renamed:
+            values = labels[aovs[name]]
             name = f"{layer}.{renamed[name]}"
-            (values,) = channels.values()
-            channels = {f"{name}.X": np.rint(values).astype(np.float32)}
+            channels = {f"{name}.X": values}
         elif name == f"{layer}.Depth":
             channels = {
                 key: np.where(z >= clip_end * (1.0 - 1e-4), BACKGROUND_DEPTH_WRITTEN, z).astype(
@@ -682,9 +731,145 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
                 )
                 for key, z in channels.items()
             }
-        names.append(name)
         return name, channels
 
     rewrite_exr(path, edit)
-    if f"{layer}.Material Index" not in names:
-        raise OutputError(path, f"the engine wrote no '{AOV_NAME}' AOV for the material index")
+
+
+#: Share of a pixel's filter weight that must fall on participating materials for
+#: EEVEE's pixel to be labelled with one (below it, the pixel is mostly other surfaces).
+MIN_COVER = 0.5
+
+#: How far a de-mixed label may be from a whole number and still be one surface's.
+LABEL_TOLERANCE = 0.02
+
+
+def eevee_labels(
+    material: np.ndarray,
+    objects: np.ndarray,
+    cover: np.ndarray,
+    material_sq: np.ndarray,
+    objects_sq: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Material and Object Index from EEVEE's filtered AOVs, as Cycles would label them.
+
+    EEVEE filters AOVs like colours: an edge pixel holds the filter-weighted mean of
+    the slots (object numbers) of the surfaces it covers, with 0 for surfaces of
+    other materials. Rounding that mean names a slot no surface in the pixel has
+    (slot 3 at a third of the weight reads 1) and an object that is not there, so
+    the post would scatter such a pixel with another material's profile, and the
+    pixels around an edge would find an object touching them where there is none
+    (unlit: ``SSSParams.contact``), darkening every silhouette. Divided by the
+    cover (the weight on participating materials), a pixel of one participating
+    surface reads whole numbers (:data:`LABEL_TOLERANCE`) whose squares are the
+    means of the squared labels (a mix has a spread: two objects 1 and 3 of one
+    material, half and half, read 2 but 5 for the square); one that mixes two
+    participating surfaces is resolved by :func:`_unmix_pairs` into the one that
+    holds most of its weight. A pixel is labelled only where that surface holds
+    at least :data:`MIN_COVER` of its weight, as in Cycles, whose index passes
+    come from one surface a pixel's samples hit. Any other covered pixel gets no
+    slot (0: no subsurface there) and a labelled neighbour's object, so the post's
+    samples that land on it see their own surface's edge.
+
+    Parameters
+    ----------
+    material, objects : (H, W) float, the AOVs ``cvsss_material`` and ``cvsss_object``
+    cover, material_sq, objects_sq : (H, W) float, the channels of ``cvsss_cover``:
+        the weight on participating materials and the weighted sums of the squared
+        slots and object numbers
+
+    Returns
+    -------
+    material, objects : (H, W) float32 whole numbers
+    """
+    cover = np.asarray(cover, dtype=np.float64)
+    covered = cover >= MIN_COVER
+    safe = np.where(covered, cover, 1.0)
+    unmixed = [np.asarray(v, dtype=np.float64) / safe for v in (material, objects)]
+    squares = [np.asarray(v, dtype=np.float64) / safe for v in (material_sq, objects_sq)]
+    wholes = [np.rint(v) for v in unmixed]
+    one = covered.copy()
+    for value, square, whole in zip(unmixed, squares, wholes):
+        one &= np.abs(value - whole) <= LABEL_TOLERANCE
+        # The spread of the labels (float32 sums: relative to the square's size).
+        one &= np.abs(square - value * value) <= LABEL_TOLERANCE * np.maximum(1.0, whole)
+    slots = np.where(one, wholes[0], 0.0)
+    numbers = np.where(one, wholes[1], 0.0)
+    _unmix_pairs(slots, numbers, one, covered & ~one, unmixed, cover)
+    numbers = _spread(numbers, one, (cover > 0) & ~one, MIXED_REACH)
+    return slots.astype(np.float32), numbers.astype(np.float32)
+
+
+#: Half the side of the window searched for the surfaces a mixed pixel may hold.
+PAIR_WINDOW = 3
+
+
+def _unmix_pairs(slots, numbers, one, mixed, unmixed, cover) -> None:
+    """Label in place each ``mixed`` pixel whose labels are two surfaces' mix.
+
+    The candidates are the (slot, object) labels that some pixel of the frame
+    holds whole and that a pixel within :data:`PAIR_WINDOW` rounds to (a thin
+    object may have no whole pixel near its edge: every pixel of it mixes a
+    little of what surrounds it). The mix weight ``w`` of each pair of candidates
+    is fitted to both means at once (least squares); a pair that explains them
+    within :data:`LABEL_TOLERANCE` gives the pixel its dominant surface's labels
+    when that surface holds at least :data:`MIN_COVER` of the pixel's weight.
+    """
+    m_bar, o_bar = unmixed
+    known = set(zip(slots[one].tolist(), numbers[one].tolist()))
+    rounded = (np.rint(m_bar), np.rint(o_bar))
+    for y, x in zip(*np.nonzero(mixed)):
+        y0, y1 = max(y - PAIR_WINDOW, 0), y + PAIR_WINDOW + 1
+        x0, x1 = max(x - PAIR_WINDOW, 0), x + PAIR_WINDOW + 1
+        near = zip(
+            rounded[0][y0:y1, x0:x1].ravel().tolist(), rounded[1][y0:y1, x0:x1].ravel().tolist()
+        )
+        labels = sorted(known.intersection(near))
+        best = None
+        for i, (j, a) in enumerate(labels):
+            for k, b in labels[i + 1 :]:
+                dm, do = m_bar[y, x] - k, o_bar[y, x] - b
+                norm = (j - k) ** 2 + (a - b) ** 2
+                w = min(max(((j - k) * dm + (a - b) * do) / norm, 0.0), 1.0)
+                miss = max(abs(w * (j - k) - dm), abs(w * (a - b) - do))
+                if miss <= LABEL_TOLERANCE and (best is None or miss < best[0]):
+                    best = (miss, (j, a) if w >= 0.5 else (k, b), max(w, 1.0 - w))
+        if best is not None and best[2] * cover[y, x] >= MIN_COVER:
+            slots[y, x], numbers[y, x] = best[1]
+            one[y, x] = True
+
+
+#: Pixels a labelled object spreads into the mixed pixels next to it (EEVEE's
+#: default 1.5-pixel filter mixes about that many).
+MIXED_REACH = 3
+
+
+def _spread(values: np.ndarray, known: np.ndarray, wanted: np.ndarray, steps: int) -> np.ndarray:
+    """``values`` with each ``wanted`` pixel set from a ``known`` 8-neighbour (the
+    largest value), repeated ``steps`` times so the known values reach that far."""
+    values = values.copy()
+    known = known.copy()
+    height, width = values.shape
+    for _ in range(steps):
+        todo = wanted & ~known
+        if not todo.any():
+            break
+        best = np.full(values.shape, -np.inf)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy == dx == 0:
+                    continue
+                src = (
+                    slice(max(dy, 0), height + min(dy, 0)),
+                    slice(max(dx, 0), width + min(dx, 0)),
+                )
+                dst = (
+                    slice(max(-dy, 0), height + min(-dy, 0)),
+                    slice(max(-dx, 0), width + min(-dx, 0)),
+                )
+                candidate = np.where(known[src], values[src], -np.inf)
+                np.maximum(best[dst], candidate, out=best[dst])
+        reached = todo & np.isfinite(best)
+        values[reached] = best[reached]
+        known |= reached
+    return values
