@@ -111,6 +111,9 @@ class SSS_PT_render(_RenderPanel, Panel):
         row = col.row()
         row.prop(s, "use_denoise_passes")
         row.active = s.engine == "CYCLES"
+        row = col.row()
+        row.prop(s, "use_denoise_subsurface")
+        row.active = s.engine == "EEVEE"
         col.prop(s, "use_ground_truth")
         sub = col.column(align=True)
         sub.active = s.use_ground_truth

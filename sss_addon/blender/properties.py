@@ -309,6 +309,15 @@ class SSSSettings(PropertyGroup):
         ),
         default=False,
     )
+    use_denoise_subsurface: BoolProperty(
+        name="Denoise Subsurface",
+        description=(
+            "EEVEE passes: denoise the subsurface pixels of the finished frame with Blender's "
+            "OpenImageDenoise. EEVEE's passes carry no noise, the post's samples do; every "
+            "other pixel stays EEVEE's"
+        ),
+        default=True,
+    )
     use_ground_truth: BoolProperty(
         name="Ground Truth",
         description=(

@@ -59,7 +59,15 @@ from .. import precompile
 from ..progress import format_clock, printer
 from . import ground_truth as gt
 from . import materials as sss_materials
-from .denoise_frame import DenoiseSettings, cycles_denoise, denoising, read_guides, scene_denoise
+from .denoise_frame import (
+    EEVEE_DENOISE,
+    DenoiseSettings,
+    cycles_denoise,
+    denoising,
+    eevee_denoise,
+    read_guides,
+    scene_denoise,
+)
 from .errors import RenderError
 from .images import show_result
 from .passes import (
@@ -309,8 +317,10 @@ def make_job(
             f"ground_truth_method must be one of {', '.join(gt.METHODS)}, "
             f"got {ground_truth_method!r}"
         )
-    if (denoise_passes or denoise is not None) and engine != "CYCLES":
-        what = "the passes" if denoise_passes else "the finished frames"
+    if engine != "CYCLES" and (
+        denoise_passes or (denoise is not None and not denoise.subsurface_only)
+    ):
+        what = "the passes" if denoise_passes else "the finished frames as Cycles does"
         raise RenderError(
             f"denoising {what} needs Cycles: {engine} writes no Denoising Albedo and "
             "Normal passes to guide the denoiser (render the passes with Cycles, or turn "
@@ -773,12 +783,15 @@ def job_from_scene(
 def _finished_denoise(scene, view_layer, engine: str, asked: bool | None):
     """The denoiser settings of the finished frames: None (not denoised) or the scene's.
 
-    ``asked`` None follows the scene's render (Cycles passes only: EEVEE's have no
-    guides); True takes the scene's Cycles settings even when its render does not
-    denoise.
+    ``asked`` None follows the scene's render, and on EEVEE passes the scene's
+    *Denoise Subsurface* (:func:`.denoise_frame.eevee_denoise`); True takes the
+    scene's Cycles settings even when its render does not denoise, and on EEVEE
+    passes denoises their subsurface pixels.
     """
-    if asked is False or (asked is None and engine != "CYCLES"):
+    if asked is False:
         return None
+    if engine != "CYCLES":
+        return EEVEE_DENOISE if asked else eevee_denoise(scene)
     settings = scene_denoise(scene, view_layer)
     if settings is None and asked:
         settings = cycles_denoise(scene)

@@ -357,7 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
         "prefilter, quality and guides; OpenImageDenoise, guided by the pass render's "
         "Denoising Albedo and Normal, which the pass files keep; their sidecars record the "
         'settings as "denoise"); default: when the scene\'s render denoises and the '
-        "passes are not denoised (--denoise-passes); Cycles passes only",
+        "passes are not denoised (--denoise-passes). EEVEE passes: the finished frame's "
+        "subsurface pixels only, without guides (EEVEE's passes carry no noise, the post's "
+        "samples do); default: the scene's Denoise Subsurface",
     )
     rnd.add_argument(
         "--denoise-passes",
@@ -598,7 +600,8 @@ def _post_denoise(passes: Path, asked: bool | None, quiet: bool):
     paths = dict(frames)
     settings = DenoiseSettings.from_dict(records[recorded[0]][0])
     if not quiet:
-        print(f"the finished frames are denoised as the passes' scene asks: {settings.describe()}")
+        why = "on EEVEE passes" if settings.subsurface_only else "as the passes' scene asks"
+        print(f"the finished frames are denoised {why}: {settings.describe()}")
 
     def guides(number: int):
         return read_guides(paths[number], records[number][1]) if number in paths else None
@@ -623,12 +626,11 @@ def _render(args: argparse.Namespace) -> int:
         _check_at_least_one("--ground-truth-every", args.ground_truth_every)
     if args.ground_truth_spp is not None and not 1 <= args.ground_truth_spp <= 2**24:
         raise UserError(f"--ground-truth-spp must be in [1, {2**24}], got {args.ground_truth_spp}")
-    for flag, asked in (("--denoise-passes", args.denoise_passes), ("--denoise", args.denoise)):
-        if asked and args.engine == "EEVEE":
-            raise UserError(
-                f"{flag} needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
-                "passes to guide the denoiser"
-            )
+    if args.denoise_passes and args.engine == "EEVEE":
+        raise UserError(
+            "--denoise-passes needs Cycles passes: EEVEE writes no Denoising Albedo and Normal "
+            "passes to guide the denoiser"
+        )
     if args.denoise and args.denoise_passes:
         raise UserError(
             "--denoise (the finished frames) and --denoise-passes (the passes): choose one"

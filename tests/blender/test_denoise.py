@@ -181,3 +181,70 @@ def test_diffuse_color_is_left_as_rendered_from_16_spp(demo, tmp_path):
         assert ratio < 0.7, (name, ratio)
     ratio = _error_ratio(a, b, c, ("Diffuse Direct", "Diffuse Indirect"), sss)
     assert ratio < 0.9, ratio  # measured 0.70
+
+
+def test_eevee_denoise_changes_the_subsurface_pixels_only():
+    """OIDN on a frame noisy everywhere, told the subsurface pixels: they come out
+    closer to the noise-free frame, every other pixel exactly as it was."""
+    from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
+
+    height, width = 32, 48
+    y, x = np.mgrid[0:height, 0:width]
+    clean = np.stack([0.2 + 0.3 * x / width, 0.3 + 0.2 * y / height, 0.25 + 0 * x], -1)
+    noise = np.random.default_rng(0).normal(0.0, 0.05, clean.shape)
+    rgba = np.ones((height, width, 4), np.float32)
+    rgba[..., :3] = np.clip(clean + noise, 0.0, None)
+    rgba[..., 3] = 0.5
+    mask = np.zeros((height, width), bool)
+    mask[4:28, 6:30] = True
+    out = denoise_frame(rgba, None, None, EEVEE_DENOISE, mask)
+    np.testing.assert_array_equal(out[~mask], rgba[~mask])
+    assert (out[..., 3] == 0.5).all()
+    before = np.mean((rgba[..., :3][mask] - clean[mask]) ** 2)
+    after = np.mean((out[..., :3][mask] - clean[mask]) ** 2)
+    assert after < 0.5 * before
+    with pytest.raises(ValueError, match="mask"):
+        denoise_frame(rgba, None, None, EEVEE_DENOISE)
+
+
+@pytest.mark.slow
+def test_eevee_passes_denoise_the_subsurface_as_the_scene_asks(demo, tmp_path):
+    """EEVEE passes: the finished frames' subsurface pixels are denoised unless the
+    scene's Denoise Subsurface is off (or --no-denoise); the pass sidecar records it,
+    and the two composites differ on subsurface pixels only."""
+    from cvsss.core.io.exr import read_frame, read_result
+    from cvsss.sss_addon.blender import standalone
+    from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE
+
+    assert demo.sss_settings.use_denoise_subsurface
+    assert render.job_from_scene(demo, out=tmp_path / "a", engine="EEVEE").denoise == EEVEE_DENOISE
+    demo.sss_settings.use_denoise_subsurface = False
+    assert render.job_from_scene(demo, out=tmp_path / "b", engine="EEVEE").denoise is None
+    job = render.job_from_scene(demo, out=tmp_path / "c", engine="EEVEE", denoise=True)
+    assert job.denoise == EEVEE_DENOISE
+    demo.sss_settings.use_denoise_subsurface = True
+    composites = {}
+    for name, denoise in (("on", None), ("off", False)):
+        out = tmp_path / name
+        standalone.render_sequence(
+            demo,
+            (1, 1),
+            out,
+            ["as_ccv"],
+            engine="EEVEE",
+            reference=False,
+            log=None,
+            denoise=denoise,
+        )
+        composites[name] = read_result(out / "as_ccv" / "0001.exr")
+        sidecar = json.loads((out / "passes" / "0001.json").read_text())
+        assert sidecar.get("denoise", {}).get("subsurface_only", False) == (name == "on")
+    # Off the subsurface pixels the finished frame is the pass render's Combined, as
+    # rendered; on them the denoised frame moves ten times further from the other
+    # run's than two EEVEE renders of the frame differ elsewhere.
+    on, off = composites["on"]["Composite"], composites["off"]["Composite"]
+    mask = composites["on"]["Mask"] > 0
+    combined = read_frame(tmp_path / "on" / "passes" / "0001.exr").combined
+    np.testing.assert_array_equal(on[~mask], combined[~mask])
+    elsewhere = np.abs(on[~mask] - off[~mask]).max()
+    assert np.abs(on[mask] - off[mask]).max() > 10 * max(elsewhere, 1e-4)

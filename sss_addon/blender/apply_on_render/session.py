@@ -213,7 +213,8 @@ class Session:
             f"{'; ' + what if what else ''}"
         )
         if self.denoise is not None:
-            log(f"the finished frames are denoised as the scene asks: {self.denoise.describe()}")
+            why = "on EEVEE" if self.denoise.subsurface_only else "as the scene asks"
+            log(f"the finished frames are denoised {why}: {self.denoise.describe()}")
         if self.user.needs_passes:
             where = " and ".join(
                 what
@@ -251,7 +252,7 @@ class Session:
             self.job.normal,
             self.job.denoise_passes,
             user=user,
-            guides=self.denoise is not None,
+            guides=self.denoise is not None and not self.denoise.subsurface_only,
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")
@@ -444,7 +445,7 @@ class Session:
         if self.denoise is not None:
             noisy = rgba
             guides = read_guides(path, self.job.view_layer.name)
-            rgba = denoise_frame(noisy, *guides, self.denoise)
+            rgba = denoise_frame(noisy, *guides, self.denoise, result.mask)
         self.last, self.last_noisy = rgba, noisy
         self.paths[frame] = path
         if self.movie or self.deferred:
