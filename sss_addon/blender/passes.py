@@ -19,11 +19,12 @@ EEVEE has no Material Index or Object Index pass (nor Diffuse Indirect: its
 Diffuse Light is written as Diffuse Direct). For EEVEE the slot and the
 object's number are written by AOV Output nodes added to each participating
 material (value AOVs ``cvsss_material`` and ``cvsss_object``, the latter
-from an Object Info node, and ``cvsss_cover``, 1), and the EXR is rewritten
-after the render so that they become the ``Material Index`` and ``Object
-Index`` passes (EEVEE filters AOVs: :func:`eevee_labels` reads one surface's
-labels out of an edge pixel's mix) and the background depth, which EEVEE
-writes as the clip end, becomes 1e10 as in Cycles.
+from an Object Info node, and the colour AOV ``cvsss_cover``: 1, slot²,
+object number²), and the EXR is rewritten after the render so that they
+become the ``Material Index`` and ``Object Index`` passes (EEVEE filters
+AOVs: :func:`eevee_labels` reads one surface's labels out of an edge pixel's
+mix) and the background depth, which EEVEE writes as the clip end, becomes
+1e10 as in Cycles.
 """
 
 from __future__ import annotations
@@ -202,9 +203,9 @@ COVER_AOV = "cvsss_cover"
 #: Value AOV that carries a linked (textured) Subsurface Weight per pixel.
 WEIGHT_AOV = "cvsss_weight"
 
-#: Version of the pass set this module renders (2: with the Object Index pass); the
-#: demo renders its passes again when it changes; 3: EEVEE's mixed edge pixels are
-#: not labelled).
+#: Version of the pass set this module renders (2: with the Object Index pass; 3: EEVEE's
+#: edge pixels labelled by :func:`eevee_labels`); the demo renders its passes again when
+#: it changes.
 PASS_FORMAT = 3
 
 NEEDED_PASSES = (
@@ -814,6 +815,7 @@ def _unmix_pairs(slots, numbers, one, mixed, unmixed, cover) -> None:
     is fitted to both means at once (least squares); a pair that explains them
     within :data:`LABEL_TOLERANCE` gives the pixel its dominant surface's labels
     when that surface holds at least :data:`MIN_COVER` of the pixel's weight.
+    A Python loop over the mixed pixels, about 20 µs each (a few thousand at 1080p).
     """
     m_bar, o_bar = unmixed
     known = set(zip(slots[one].tolist(), numbers[one].tolist()))
