@@ -67,6 +67,8 @@ def apply_on_render_settings(scene) -> dict:
         # The warm-up it runs before an animation: none for a method reusing no estimates.
         "warmup_frames": int(s.warmup_frames) if warm_up_pays(s.method) else 0,
         "denoise_passes": bool(s.use_denoise_passes),
+        # On EEVEE passes: the finished frame's subsurface pixels denoised.
+        "denoise_subsurface": bool(s.use_denoise_subsurface),
     }
 
 
@@ -283,7 +285,9 @@ def describe(report: dict) -> str:
         f"{report['ground_truth']['samples']} spp, each material's own subsurface method "
         f"(the materials': {report['materials_method']}), denoising off, seed "
         f"{report['ground_truth']['seed']}. Apply on Render: {aor['method']}, warm-up "
-        f"{aor['warmup_frames']} frame(s) before an animation. PSNR in display space (exposure 1/p99 of the "
+        f"{aor['warmup_frames']} frame(s) before an animation"
+        f"{'; on EEVEE its subsurface pixels denoised' if aor.get('denoise_subsurface') else ''}"
+        ". PSNR in display space (exposure 1/p99 of the "
         "ground truth's brightest channel, sRGB, clipped); subsurface pixels: the ground truth "
         "with and without subsurface differ by more than 1 % of its peak; effect: the change "
         "subsurface makes, scaled to Cycles' lighting, against Cycles' change. s / frame: wall "

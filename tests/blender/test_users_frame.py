@@ -105,6 +105,7 @@ def test_the_table_of_a_tiny_scene(demo, tmp_path, snapshot):
         # only methods that reuse their history's estimates.
         "warmup_frames": 0,
         "denoise_passes": False,
+        "denoise_subsurface": True,
     }
     table = (out / "users_frame.md").read_text()
     assert "| Cycles 4 spp + denoiser, Christensen-Burley (the materials' own) | plain |" in table
