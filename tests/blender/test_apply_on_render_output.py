@@ -272,6 +272,13 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     assert "The Diffuse passes hold no subsurface light (only Combined does)" not in (
         scene_notes(scene)
     )
+    # EEVEE has no denoiser; Apply on Render denoises the subsurface pixels it adds.
+    denoised = "The subsurface pixels are denoised with OpenImageDenoise (Denoise Subsurface)"
+    assert denoised not in scene_notes(scene)
+    scene.render.engine = "BLENDER_EEVEE"
+    assert denoised in scene_notes(scene)
+    scene.sss_settings.use_denoise_subsurface = False
+    assert denoised not in scene_notes(scene)
 
 
 def test_ui_finishes_through_the_users_compositor(scene, tmp_path, snapshot, monkeypatch):

@@ -49,6 +49,11 @@ def bypassed(scene) -> list[str]:
     if scene.render.engine == "CYCLES" and cycles is not None and cycles.use_denoising:
         if cycles.denoiser == "OPTIX":
             notes.append("the finished frame is denoised with OpenImageDenoise (not OptiX)")
+    eevee = scene.render.engine in ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT")
+    if eevee and scene.sss_settings.use_denoise_subsurface:
+        notes.append(
+            "the subsurface pixels are denoised with OpenImageDenoise (Denoise Subsurface)"
+        )
     return notes
 
 
