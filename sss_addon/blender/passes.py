@@ -386,7 +386,9 @@ class PassSetup(SceneSetup):
         self._only_layer(
             lambda ident: ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
         )
-        if (self.denoise or self.guides) and getattr(self.view_layer, "cycles", None) is not None:
+        # Cycles' guide passes: another engine writes none (EEVEE's finished frames are
+        # denoised without guides, denoise_frame.EEVEE_DENOISE).
+        if (self.denoise or self.guides) and self.engine == "CYCLES":
             self.view_layer.cycles.denoising_store_passes = True
         for material in bpy.data.materials:
             if material.pass_index != 0 and material.is_editable:
@@ -698,24 +700,25 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
     ``<layer>.cvsss_cover`` is dropped and depths at the clip end become 1e10.
     """
     aovs = {f"{layer}.{n}": n for n in (AOV_NAME, OBJECT_AOV, COVER_AOV)}
-    read = {}
+    labels = {}
 
-    def collect(name: str, channels: dict) -> None:
-        if aovs.get(name) == COVER_AOV:
-            read[COVER_AOV] = [channels[f"{name}.{c}"] for c in "RGB"]
-        elif name in aovs:
-            (read[aovs[name]],) = channels.values()
+    def prepare(parts: dict) -> None:
+        read = {}
+        for name, channels in parts.items():
+            if aovs.get(name) == COVER_AOV:
+                read[COVER_AOV] = [channels[f"{name}.{c}"] for c in "RGB"]
+            elif name in aovs:
+                (read[aovs[name]],) = channels.values()
+        for name, what in (
+            (AOV_NAME, "material index"),
+            (OBJECT_AOV, "object index"),
+            (COVER_AOV, "cover"),
+        ):
+            if name not in read:
+                raise OutputError(path, f"the engine wrote no '{name}' AOV for the {what}")
+        material, objects = eevee_labels(read[AOV_NAME], read[OBJECT_AOV], *read[COVER_AOV])
+        labels.update({AOV_NAME: material, OBJECT_AOV: objects})
 
-    rewrite_exr(path, collect, write=False)
-    for name, what in (
-        (AOV_NAME, "material index"),
-        (OBJECT_AOV, "object index"),
-        (COVER_AOV, "cover"),
-    ):
-        if name not in read:
-            raise OutputError(path, f"the engine wrote no '{name}' AOV for the {what}")
-    material, objects = eevee_labels(read[AOV_NAME], read[OBJECT_AOV], *read[COVER_AOV])
-    labels = {AOV_NAME: material, OBJECT_AOV: objects}
     renamed = {f"{layer}.{AOV_NAME}": "Material Index", f"{layer}.{OBJECT_AOV}": "Object Index"}
 
     def edit(name: str, channels: dict) -> tuple[str, dict] | None:
@@ -734,7 +737,7 @@ def aov_to_material_index(path: Path, layer: str, clip_end: float) -> None:
             }
         return name, channels
 
-    rewrite_exr(path, edit)
+    rewrite_exr(path, edit, prepare)
 
 
 #: Share of a pixel's filter weight that must fall on participating materials for
@@ -796,7 +799,7 @@ def eevee_labels(
         one &= np.abs(square - value * value) <= LABEL_TOLERANCE * np.maximum(1.0, whole)
     slots = np.where(one, wholes[0], 0.0)
     numbers = np.where(one, wholes[1], 0.0)
-    _unmix_pairs(slots, numbers, one, covered & ~one, unmixed, cover)
+    _unmix_pairs(slots, numbers, one, covered & ~one, unmixed, wholes, cover)
     numbers = _spread(numbers, one, (cover > 0) & ~one, MIXED_REACH)
     return slots.astype(np.float32), numbers.astype(np.float32)
 
@@ -805,10 +808,11 @@ def eevee_labels(
 PAIR_WINDOW = 3
 
 
-def _unmix_pairs(slots, numbers, one, mixed, unmixed, cover) -> None:
+def _unmix_pairs(slots, numbers, one, mixed, unmixed, rounded, cover) -> None:
     """Label in place each ``mixed`` pixel whose labels are two surfaces' mix.
 
-    The candidates are the (slot, object) labels that some pixel of the frame
+    ``unmixed`` and ``rounded``: the labels over the cover, and those rounded. The
+    candidates are the (slot, object) labels that some pixel of the frame
     holds whole and that a pixel within :data:`PAIR_WINDOW` rounds to (a thin
     object may have no whole pixel near its edge: every pixel of it mixes a
     little of what surrounds it). The mix weight ``w`` of each pair of candidates
@@ -819,7 +823,6 @@ def _unmix_pairs(slots, numbers, one, mixed, unmixed, cover) -> None:
     """
     m_bar, o_bar = unmixed
     known = set(zip(slots[one].tolist(), numbers[one].tolist()))
-    rounded = (np.rint(m_bar), np.rint(o_bar))
     for y, x in zip(*np.nonzero(mixed)):
         y0, y1 = max(y - PAIR_WINDOW, 0), y + PAIR_WINDOW + 1
         x0, x1 = max(x - PAIR_WINDOW, 0), x + PAIR_WINDOW + 1

@@ -14,7 +14,7 @@ from .. import materials as sss_materials
 from ..errors import RenderError
 from ..passes import render_view_layer
 from .compositor import render_layer_names
-from .scenes import pass_engine
+from .scenes import PASS_ENGINES, pass_engine
 from .user_render import compositing, material_index_exact, multilayer
 
 #: View layer pass switches whose passes the pass render makes without subsurface.
@@ -49,7 +49,7 @@ def bypassed(scene) -> list[str]:
     if scene.render.engine == "CYCLES" and cycles is not None and cycles.use_denoising:
         if cycles.denoiser == "OPTIX":
             notes.append("the finished frame is denoised with OpenImageDenoise (not OptiX)")
-    eevee = scene.render.engine in ("BLENDER_EEVEE", "BLENDER_EEVEE_NEXT")
+    eevee = PASS_ENGINES.get(scene.render.engine) == "EEVEE"
     if eevee and scene.sss_settings.use_denoise_subsurface:
         notes.append(
             "the subsurface pixels are denoised with OpenImageDenoise (Denoise Subsurface)"

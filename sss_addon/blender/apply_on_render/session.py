@@ -252,7 +252,7 @@ class Session:
             self.job.normal,
             self.job.denoise_passes,
             user=user,
-            guides=self.denoise is not None and not self.denoise.subsurface_only,
+            guides=self.denoise is not None,
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")
