@@ -413,6 +413,17 @@ class SSSParams(_Params):
         hi=1.0,
         advanced=True,
     )
+    hidden_mirror: bool = param(
+        True,
+        label="Mirror Hidden Light",
+        help="Where a sample lands beyond a silhouette (on the background or another "
+        "material or object), read the pixel opposite it through the shaded pixel when "
+        "that pixel is on the same surface: the hidden side is taken to continue as the "
+        "visible one, so a rim lit harder than the surface below it loses light into it "
+        "as in Cycles (the top edge of a candle under its flame). Off, or where the "
+        "opposite pixel is not on the surface, Hidden Light applies",
+        advanced=True,
+    )
     contact: float = param(
         0.5,
         label="Contact Height",

@@ -85,6 +85,25 @@ estimator over one surface whose part under the other object is dark
 (tests/core/test_estimator.py). Without the pass every pixel counts as one
 object and nothing changes.
 
+Hidden surface
+--------------
+Cycles integrates the whole object within the profile's reach, also where the
+camera does not see it: behind a silhouette, or behind another object in
+front. A rejected sample that lands on the image on the background or on
+another material or object (not touching the centre's surface, and not an
+occluder in front of it) stands for that hidden surface. With ``mirror`` it
+reads the pixel opposite it through the centre, ``2·p − q``, when that pixel
+is on the centre's surface (it passes the tests an accepted sample passes):
+the surface on the far side of a silhouette is taken to continue as the
+visible side the sample's mirror image lands on, as an image filter reflects
+at a border. The rim of a candle lit from above then loses its light to the
+dim wall below it, as Cycles' does, where reading the centre's own light kept
+it; under light that is even across the silhouette both read the same. Where
+the mirrored pixel is not on the surface either, the sample counts the centre's
+light less ``(1 − β)`` of its direct part (``hidden_light``, β = 1: the
+centre's light, nothing added). Both weigh the sample at its planar weight
+(the profile at the sampled radius), as for a plane facing the camera.
+
 Work is compacted: only pixels with m > 0 are visited, their samples are laid
 out contiguously, processed in batches small enough to stay in the CPU's
 cache, and summed back per pixel in sample order. Cost is proportional to
@@ -162,6 +181,7 @@ def estimate_distant(
     disk: bool = False,
     hidden_light: float = 1.0,
     contact: float = 0.0,
+    hidden_mirror: bool = False,
 ) -> DistantEstimate:
     """Estimate Î for every SSS pixel with the given per-pixel sample counts.
 
@@ -189,6 +209,9 @@ def estimate_distant(
     contact : float >= 0, with ``geom.objects``: a sample on another object within
         ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
         continuing under it (module doc, *Objects*); 0: no such samples
+    hidden_mirror : bool, a hidden-surface sample reads the pixel opposite it through
+        the centre where that pixel is on the centre's surface (module doc, *Hidden
+        surface*); before ``hidden_light``
 
     Returns
     -------
@@ -217,7 +240,7 @@ def estimate_distant(
     var_sums, fallback = distant_sums(
         geom, profile, counts, active, lighting, depth, frame=frame, seed=seed,
         depth_slope=depth_slope, variance=variance, disk=disk, hidden_light=hidden_light,
-        contact=contact, chunk_samples=chunk_samples, distant=distant, start=start,
+        contact=contact, hidden_mirror=hidden_mirror, chunk_samples=chunk_samples, distant=distant, start=start,
         samples=total, backend=backend,
     )  # fmt: skip
     spread = None
@@ -283,6 +306,7 @@ def distant_sums(
     disk: bool,
     hidden_light: float,
     contact: float,
+    hidden_mirror: bool,
     chunk_samples: int,
     distant: np.ndarray,
     start: bool,
@@ -294,7 +318,7 @@ def distant_sums(
     Parameters
     ----------
     geom, profile, lighting, depth, frame, seed, depth_slope, variance, disk,
-    hidden_light, contact, chunk_samples : as :func:`estimate_distant`
+    hidden_light, contact, hidden_mirror, chunk_samples : as :func:`estimate_distant`
     counts : (G,) int64, samples per SSS pixel; active : (P,) int64, the pixels of
         ``geom`` that take samples (counts > 0 and Σγ > 0)
     distant : (G, 3) float64, written in place: γ·B(p) on entry (with ``start``, every
@@ -322,6 +346,7 @@ def distant_sums(
         disk,
         hidden_light,
         contact,
+        hidden_mirror,
     )
     if active.size == geom.size:
         distant += sums / counts[:, None]
@@ -362,6 +387,7 @@ def _distant_sums_compiled(
     disk: bool,
     hidden_light: float,
     contact: float,
+    hidden_mirror: bool,
     chunk_samples: int,
     distant: np.ndarray,
     start: bool,
@@ -447,6 +473,7 @@ def _distant_sums_compiled(
         f32(geom.fw[first] / geom.fh[first]),
         bool(disk),
         f32(hidden_light),
+        bool(hidden_mirror),
         geom.direct if geom.direct is not None else np.zeros((geom.size, 3), f32),
         geom.objects is not None,
         inv_k,

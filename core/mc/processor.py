@@ -195,6 +195,7 @@ class MonteCarloProcessor:
             disk=p.distance == "cycles",
             hidden_light=p.hidden_light,
             contact=p.contact,
+            hidden_mirror=p.hidden_mirror,
         )
         sampling_ms = (time.perf_counter() - t0) * 1e3
 

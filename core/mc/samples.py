@@ -229,6 +229,7 @@ def batch_sums(
     disk: bool = False,
     hidden_light: float = 1.0,
     contact: float = 0.0,
+    mirror: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None, int]:
     """Per active pixel Σ_k w_c·(B_c(q_k) − B_c(p)), luminance sums and fall-backs (NumPy).
 
@@ -392,19 +393,41 @@ def batch_sums(
                     touching = None
         # Hidden surface: a rejected sample on the image that landed on the background or
         # another material or object (not in front of the centre, an occluder, nor
-        # touching it) counts with the centre's light less (1 − β) of its direct part, at
-        # its planar weight.
+        # touching it). With ``mirror`` it reads the point opposite it through the
+        # centre where that point is on the centre's surface; otherwise it counts with
+        # the centre's light less (1 − β) of its direct part. Both at its planar weight
+        # (module doc, *Hidden surface*).
         fill = None
-        if fill_value is not None:
+        if fill_value is not None or mirror:
             fill = inside & ~ok
             if touching is not None:
                 fill &= ~touching
             fill &= ~(zp - zq > np.float32(0.1) * zp)
+            mirrored = None
+            if mirror and fill.any():
+                mirrored_q = _mirrored(
+                    fill, px, py, fx, fy, zp, tol, mat, centre_idx,
+                    slots, objects, depth32, w, h, ox, oy,
+                )  # fmt: skip
+                mirrored = mirrored_q >= 0
+                if fill_value is None:
+                    fill = mirrored
             if fill.any():
-                # The filled samples' pixels (indices into pix) and (3, n_fill) their
-                # −(1 − β)·B_direct(p), times a weight below.
-                fill_pix = np.take(local, np.flatnonzero(fill))
-                fill_light = np.take(fill_value, fill_pix, axis=1)
+                # The filled samples' pixels (indices into pix) and (3, n_fill) what
+                # they add, B(q') − B(p) or −(1 − β)·B_direct(p), times a weight below.
+                at = np.flatnonzero(fill)
+                fill_pix = np.take(local, at)
+                if fill_value is None:
+                    fill_light = np.zeros((3, at.size), np.float32)
+                else:
+                    fill_light = np.take(fill_value, fill_pix, axis=1)
+                if mirrored is not None:
+                    qm = np.take(mirrored_q, at)
+                    on = qm >= 0
+                    for ci in range(3):
+                        m_light = np.take(light_cm[ci], qm[on])
+                        m_light -= np.take(centre_light[ci], fill_pix[on])
+                        fill_light[ci, on] = m_light
             else:
                 fill = None
         if touching is not None:
@@ -504,6 +527,41 @@ def batch_sums(
             y64 *= y64
             var[a:b, 1] = np.add.reduceat(y64, starts)
     return sums, var, fallback
+
+
+def _mirrored(
+    hidden, px, py, fx, fy, zp, tol, mat, centre_idx,
+    slots, objects, depth32, w, h, ox, oy,
+) -> np.ndarray:  # fmt: skip
+    """(n,) intp: for each ``hidden`` sample, the pixel opposite its landing pixel
+    through the centre, ``2·p − q``, where that pixel is on the crop, of the centre's
+    material and object, and within the sample's depth tolerance of the centre's depth
+    (``tol``; not the tangent-plane test: a mirror image is a stand-in, taken only
+    where it plainly continues the centre's surface); −1 elsewhere."""
+    out = np.full(hidden.size, -1, np.intp)
+    at = np.flatnonzero(hidden)
+    mx = np.float32(2.0) * np.take(px, at)
+    mx -= np.take(fx, at)
+    my = np.float32(2.0) * np.take(py, at)
+    my -= np.take(fy, at)
+    ix = mx.astype(np.intp)
+    iy = my.astype(np.intp)
+    if ox:
+        ix -= ox
+    if oy:
+        iy -= oy
+    inside = ix.view(np.uintp) < w
+    inside &= iy.view(np.uintp) < h
+    centre = np.take(centre_idx, at)
+    q = iy * w
+    q += ix
+    q = np.where(inside, q, centre)
+    ok = inside & (np.take(slots, q) == np.take(mat, at))
+    if objects is not None:
+        ok &= np.take(objects, q) == np.take(objects, centre)
+    ok &= np.abs(np.take(depth32, q) - np.take(zp, at)) <= np.take(tol, at)
+    out[at] = np.where(ok, q, -1)
+    return out
 
 
 def _touching(other, qx, qy, zq, zp, centre, r, touch, pix: Pixels, surf, local):

@@ -22,6 +22,8 @@ def shade(
     disk=False,
     hidden=1.0,
     contact=0.0,
+    mirror=False,
+    backend="numpy",
 ):
     """The unified estimator on ``frame`` with ``counts`` samples per SSS pixel.
 
@@ -35,6 +37,8 @@ def shade(
     disk : with ``surface``, weigh them with Cycles' disk kernel (distance "cycles")
     hidden : SSSParams.hidden_light
     contact : SSSParams.contact (with the frame's Object Index pass)
+    mirror : SSSParams.hidden_mirror
+    backend : "numpy" or "numba"
 
     Returns
     -------
@@ -57,6 +61,8 @@ def shade(
         disk=disk,
         hidden_light=hidden,
         contact=contact,
+        hidden_mirror=mirror,
+        backend=backend,
     )
     b = frame.lighting.reshape(-1, 3)[geom.index].astype(np.float64)
     return geom, est, (1 - geom.gamma) * b + est.distant

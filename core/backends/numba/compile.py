@@ -146,6 +146,7 @@ def _compile_sampling(fn) -> None:
         f32(1.0),
         False,
         f32(1.0),
+        False,
         np.zeros((1, 3), f32),
         False,
         f32(1.0),

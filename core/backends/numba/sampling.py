@@ -138,6 +138,7 @@ def _pixel_sums(
     aspect,
     disk,
     hidden,
+    mirror,
     direct,
     use_obj,
     inv_k,
@@ -196,6 +197,9 @@ def _pixel_sums(
     disk : bool, weigh with the kernel of Cycles' disk estimator (texel normals)
     hidden : float32, the hidden-light share β (< 1: rejected samples on the background
         or another material or object count −(1 − β)·B_direct(p) at their planar weight)
+    mirror : bool, a hidden-surface sample first reads the pixel opposite it through
+        the centre, where that pixel has the centre's key and lies within the sample's
+        depth tolerance of the centre (B(q') − B(p) at its planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     use_obj : bool, the texels' slot carries the object (``slot + K·object``):
         a sample on another object is rejected (or, within ``touch·r`` of the
@@ -263,6 +267,7 @@ def _pixel_sums(
         b_ok = np.zeros(BATCH, np.bool_)
         b_fill = np.empty(BATCH, np.bool_)
         b_touch = np.zeros(BATCH, np.bool_)
+        b_mir = np.zeros(BATCH, np.bool_)
         b_w = np.empty((3, BATCH), np.float32)
         idch = np.empty(3, np.float32)
         # R2 word offsets of a batch's lanes: j·a mod 2**32.
@@ -536,6 +541,7 @@ def _pixel_sums(
                     if b_ok[j]:
                         b_fill[j] = False
                         b_touch[j] = False
+                        b_mir[j] = False
                         if use_plane:
                             q8 = np.uint64(b_q[j]) * _EIGHT
                             fb[_ROW_A + j] = texel[q8 + _FOUR]
@@ -565,6 +571,7 @@ def _pixel_sums(
                             hq = abs(dx * nx + dy * ny + dz * nz)
                         touching = hq <= touch * fb[_ROW_R + j]
                     fill = False
+                    mirrored = False
                     if touching:
                         # Unlit, at its point of the centre's tangent plane (the plane's
                         # depth along the sample's ray, the centre's area element).
@@ -580,18 +587,34 @@ def _pixel_sums(
                                 area_t = area_p * ratio * ratio
                     else:
                         # Hidden surface: on the image, not in front of the centre.
-                        fill = use_fill and inside and not (zp - zq > np.float32(0.1) * zp)
+                        hid = inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
+                        if mirror and hid:
+                            # The pixel opposite through the centre, if on its surface.
+                            mxf = np.float32(2.0) * px - fb[_ROW_FX + j]
+                            myf = np.float32(2.0) * py - fb[_ROW_FY + j]
+                            mix = np.int64(np.int32(mxf)) - ox
+                            miy = np.int64(np.int32(myf)) - oy
+                            if (mix >= 0) & (mix < w) & (miy >= 0) & (miy < h):
+                                qm = miy * w + mix
+                                m8 = np.uint64(qm) * _EIGHT
+                                # Same key, and near the centre's depth (no plane test).
+                                near = abs(texel[m8 + _THREE] - zp) <= slope * fb[_ROW_R + j]
+                                if texel[m8 + _FIVE] == key and near:
+                                    mirrored = True
+                                    q = qm
+                        fill = mirrored or (use_fill and hid)
                         zq = zp
                         if core:
                             nfb += 1
                     b_fill[j] = fill
+                    b_mir[j] = mirrored
                     b_ok[j] = ok
                     b_touch[j] = touching
                     b_q[j] = q
                     fb[_ROW_ZQ + j] = zq
                     if use_plane:
-                        q8 = np.uint64(q) * _EIGHT
+                        q8 = np.uint64(centre if mirrored else q) * _EIGHT
                         fb[_ROW_A + j] = area_t if touching else texel[q8 + _FOUR]
                         fb[_ROW_MX + j] = texel[q8 + _SIX]
                         fb[_ROW_MY + j] = texel[q8 + _SEVEN]
@@ -704,7 +727,8 @@ def _pixel_sums(
                         b_w[2, j] = np.float32(g2)
                 # Stage 4: gather and sum, in sample order (a rejected sample reads the
                 # centre: its difference is exactly 0, so it is skipped; a hidden-surface
-                # fill adds its share of the centre's direct light).
+                # sample adds its mirror image's difference, or else its share of the
+                # centre's direct light).
                 for j in range(nb):
                     if b_ok[j]:
                         q8 = np.uint64(b_q[j]) * _EIGHT
@@ -722,6 +746,11 @@ def _pixel_sums(
                             d0 = (l0 - b0) * b_w[0, j]
                             d1 = (l1 - b1) * b_w[1, j]
                             d2 = (l2 - b2) * b_w[2, j]
+                    elif b_mir[j]:
+                        q8 = np.uint64(b_q[j]) * _EIGHT
+                        d0 = (texel[q8] - b0) * b_w[0, j]
+                        d1 = (texel[q8 + _ONE] - b1) * b_w[1, j]
+                        d2 = (texel[q8 + _TWO] - b2) * b_w[2, j]
                     elif b_fill[j]:
                         d0 = f0 * b_w[0, j]
                         d1 = f1 * b_w[1, j]

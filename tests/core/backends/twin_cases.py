@@ -108,7 +108,7 @@ def object_frames() -> dict:
 
 # -- sampling -------------------------------------------------------------------------
 def _sampling(frame, distance: str, params=None, *, variance=False, hidden=1.0,
-              contact=0.0, period=37, start=False):  # fmt: skip
+              contact=0.0, period=37, start=False, mirror=False):  # fmt: skip
     profile = frame_profile(frame, params or SSSParams())
     geom = geometry_of(frame, profile, surface_distance=distance != "planar")
     counts = (np.arange(geom.size) % period).astype(np.int64)  # m = 0 and m = 1 included
@@ -126,7 +126,7 @@ def _sampling(frame, distance: str, params=None, *, variance=False, hidden=1.0,
         kwargs = dict(
             frame=int(frame.number), seed=7, depth_slope=2.0, variance=variance,
             disk=distance == "cycles", hidden_light=hidden, contact=contact,
-            chunk_samples=1 << 16, distant=distant, start=start,
+            hidden_mirror=mirror, chunk_samples=1 << 16, distant=distant, start=start,
             samples=int(counts[active].sum()), backend=backend,
         )  # fmt: skip
         return (geom, profile, counts, active, frame.lighting, frame.depth), kwargs
@@ -153,10 +153,18 @@ def sampling_cases() -> list[Case]:
             params = SSSParams(burley_inverse=inverse)
             build, check = _sampling(frame, distance, params, variance=True, hidden=0.5)
             cases.append(Case(f"{distance}-{inverse}-variance-hidden", build, check))
+    for distance in ("surface", "cycles", "planar"):
+        for hidden in (1.0, 0.5):
+            build, check = _sampling(frame, distance, variance=True, hidden=hidden, mirror=True)
+            cases.append(Case(f"{distance}-mirror-hidden{hidden:g}", build, check))
     for case, objframe in object_frames().items():
         for distance in ("surface", "cycles", "planar"):
             build, check = _sampling(objframe, distance, contact=0.5, hidden=0.5, period=29)
             cases.append(Case(f"objects-{case}-{distance}", build, check))
+            build, check = _sampling(
+                objframe, distance, contact=0.5, hidden=0.5, period=29, mirror=True
+            )
+            cases.append(Case(f"objects-{case}-{distance}-mirror", build, check))
     build, check = _sampling(frame, "surface", start=True, variance=True)
     cases.append(Case("start-rows", build, check))
     return cases

@@ -224,6 +224,46 @@ def test_an_object_off_the_plane_is_not_touching(kernel):
     np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_a_hidden_sample_reads_the_visible_side_mirrored(kernel, backend):
+    """SSSParams.hidden_mirror: a sample beyond a silhouette (the background right of
+    column 32) reads the pixel opposite it through the centre. With lighting that depends
+    on x only and peaks at the silhouette, the silhouette's pixels then get what the
+    surface continued by its mirror image gives: there the same samples land on pixels
+    lit as the mirrored ones (planar weights exactly; the surface kernels weigh accepted
+    samples by the surface, the mirrored ones at their planar weight, equal on this
+    plane to float rounding). Without the mirror the rim keeps its own peak light."""
+    w, h, edge = 64, 48, 32
+    d = (0.006, 0.004, 0.002)  # metres; red reaches 16·d ≈ 13 px at 2 m
+    x = np.arange(w)
+    ramp = (0.2 + 0.04 * np.minimum(x, 2 * edge - x)).astype(np.float32)
+    light = np.ascontiguousarray(np.broadcast_to(ramp[None, :, None], (h, w, 3)))
+    full = flat_plane(w, h, d=d, lighting=light)
+    half = flat_plane(w, h, d=d, lighting=light.copy())
+    half.material[:, edge + 1 :] = 0
+    half.depth[:, edge + 1 :] = np.inf
+    opts = dict(KERNELS[kernel], backend=backend)
+    geom, est, mirrored = shade(half, 64, mirror=True, **opts)
+    gfull, _, expected = shade(full, 64, **opts)
+    # The silhouette column, away from the top and bottom (where a mirror image would
+    # leave the image).
+    rim = (geom.x == edge) & (geom.y >= 16) & (geom.y < 32)
+    at_full = np.flatnonzero(np.isin(gfull.index, geom.index[rim]))
+    if kernel == "planar":
+        np.testing.assert_array_equal(mirrored[rim], expected[at_full])
+    else:
+        np.testing.assert_allclose(mirrored[rim], expected[at_full], rtol=2e-5, atol=1e-7)
+    # The continued surface is dimmer than the rim: light leaves the rim.
+    peak = ramp[edge]
+    assert mirrored[rim, 0].max() < peak
+    _, _, kept = shade(half, 64, **opts)
+    assert kept[rim, 0].min() > mirrored[rim, 0].max()
+    # Inside, beyond the samples' reach of the silhouette, nothing changes.
+    inner = geom.x < edge - 14
+    np.testing.assert_array_equal(mirrored[inner], kept[inner])
+
+
 @pytest.mark.parametrize(
     "choice",
     [
