@@ -405,8 +405,8 @@ class SSSParams(_Params):
         label="Hidden Light",
         help="Share of a pixel's direct light assumed on the surface the camera does not see "
         "(behind its silhouettes, under objects resting on it), where the profile's samples "
-        "land on the background or another material or object: 1 takes the pixel's own light (no "
-        "assumption); below 1 darkens it, as where the back of an object or the ground under "
+        "land on the background or another material or object and Mirror Hidden Light does "
+        "not apply: 1 takes the pixel's own light (no assumption); below 1 darkens it, as where the back of an object or the ground under "
         "it lies in its shadow (front or top light: 0.75 brought the demo's flash rims from "
         "+7 % to ±1 % of Cycles)",
         lo=0.0,
@@ -431,8 +431,8 @@ class SSSParams(_Params):
         "(Cycles does not scatter between objects), and one that lands on another object "
         "within contact·r of the pixel's tangent plane (r the sample's radius) counts as the "
         "pixel's surface continuing under that object, where it touches it: unlit, as at "
-        "the foot of a block resting on a table. 0 leaves such samples at the pixel's own "
-        "light",
+        "the foot of a block resting on a table. 0 leaves such samples to the hidden-surface "
+        "rules (Mirror Hidden Light, Hidden Light)",
         unit="fraction of the sample radius",
         lo=0.0,
         ui_hi=1e6,

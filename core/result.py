@@ -43,7 +43,8 @@ class FrameResult:
     update_ms : float, wall time of history + CV bookkeeping
     total_ms : float, wall time of the whole ``process()`` call
     distant_share : float, share of SSS pixels with max γ ≥ ε_u
-    fallback_share : float, share of samples that fell back to the centre
+    fallback_share : float, share of samples the follow-surface tests rejected (they
+        read the centre, or stand for hidden surface)
     repaired : int, input values replaced because non-finite or negative
     fallback, draws : int, the terms of ``fallback_share``: samples (separable: tap
         reads) that fell back, of ``draws``

@@ -59,20 +59,22 @@ varies), and constant lighting is returned exactly only where G = 1.
 
 Following the surface
 ---------------------
-A sample falls back to the centre when it lands off screen, on another
-material, or on a depth that differs by more than ``depth_slope·r`` both from
-the centre's depth and — in the surface modes — from the centre's tangent
-plane (through x_p with the depth-buffer normal, evaluated along the landing
-pixel's view ray). The second test keeps the samples of steep surfaces (a
-table top seen at 75°, whose depth changes by 3.7·r over a radius r) that a
-fixed slope would reject, without admitting a surface behind.
+A sample is rejected when it lands off screen, on another material, or on a
+depth that differs by more than ``depth_slope·r`` both from the centre's
+depth and — in the surface modes — from the centre's tangent plane (through
+x_p with the depth-buffer normal, evaluated along the landing pixel's view
+ray). The second test keeps the samples of steep surfaces (a table top seen
+at 75°, whose depth changes by 3.7·r over a radius r) that a fixed slope
+would reject, without admitting a surface behind. A rejected sample falls
+back to the centre (it adds nothing), unless it stands for hidden surface
+(*Hidden surface* below).
 
 Objects
 -------
 Cycles' disk probes hit the entry point's own object only: light never
 scatters from one object into another, even of the same material (a marble
 block on a marble table top). With the frame's Object Index pass
-(``geom.objects``) a sample on another object falls back like one on another
+(``geom.objects``) a sample on another object is rejected like one on another
 material. One that lands on another object within ``contact·r`` of the
 centre's tangent plane (the height ``|n·(x_q − x_p)|`` of its point above the
 plane; the depth difference without normals) marks where the centre's surface
@@ -89,12 +91,14 @@ Hidden surface
 --------------
 Cycles integrates the whole object within the profile's reach, also where the
 camera does not see it: behind a silhouette, or behind another object in
-front. A rejected sample that lands on the image on the background or on
-another material or object (not touching the centre's surface, and not an
-occluder in front of it) stands for that hidden surface. With ``mirror`` it
-reads the pixel opposite it through the centre, ``2·p − q``, when that pixel
-is on the centre's surface (it passes the tests an accepted sample passes):
-the surface on the far side of a silhouette is taken to continue as the
+front. A rejected sample that lands on the image — on the background, on
+another material or object, or on the centre's surface beyond its depth
+tolerance — stands for that hidden surface unless it touches the centre's
+surface (*Objects*) or lies in front of the centre by more than a tenth of
+its depth (an occluder). With ``mirror`` it reads the pixel opposite it
+through the centre, ``2·p − q``, when that pixel is on the crop, of the
+centre's material and object, and within ``depth_slope·r`` of the centre's
+depth (the tangent-plane test is not applied to it): the surface on the far side of a silhouette is taken to continue as the
 visible side the sample's mirror image lands on, as an image filter reflects
 at a border. The rim of a candle lit from above then loses its light to the
 dim wall below it, as Cycles' does, where reading the centre's own light kept
@@ -203,9 +207,8 @@ def estimate_distant(
     disk : bool, weigh with the kernel of Cycles' disk estimator instead of the
         profile at the surface distance (with ``geom.surface``; module doc)
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
-        a sample counts with when it lands on the background or another material or
-        object nearer than an occluder (the hidden surface; module doc); 1: the
-        centre's light
+        a hidden-surface sample counts with where its mirror image does not apply
+        (module doc, *Hidden surface*); 1: the centre's light
     contact : float >= 0, with ``geom.objects``: a sample on another object within
         ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
         continuing under it (module doc, *Objects*); 0: no such samples

@@ -58,6 +58,7 @@ def main() -> None:
                             geom, profile, counts, active, frame.lighting, frame.depth,
                             frame=2, seed=0, depth_slope=params.depth_slope, variance=False,
                             disk=True, hidden_light=1.0, contact=params.contact,
+                            hidden_mirror=params.hidden_mirror,
                             chunk_samples=1 << 16, distant=np.zeros((geom.size, 3)),
                             start=False, samples=int(counts[active].sum()),
                         )  # fmt: skip

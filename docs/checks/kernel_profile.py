@@ -97,7 +97,8 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
         _distant_sums_compiled(
             geom, profile, n, active, frame.lighting, frame.depth, frame=frame.number,
             seed=params.seed, depth_slope=params.depth_slope, variance=True, disk=True,
-            hidden_light=params.hidden_light, contact=params.contact, chunk_samples=1 << 16,
+            hidden_light=params.hidden_light, contact=params.contact,
+            hidden_mirror=params.hidden_mirror, chunk_samples=1 << 16,
             distant=np.empty((geom.size, 3)), start=active.size == geom.size,
             samples=int(n[active].sum()),
         )  # fmt: skip

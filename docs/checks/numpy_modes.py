@@ -52,6 +52,7 @@ def measure(size: tuple[int, int], calls: int) -> None:
             contact=params.contact,
             disk=disk,
             hidden_light=params.hidden_light,
+            hidden_mirror=params.hidden_mirror,
         )
 
     times: dict[str, list[float]] = {name: [] for name in (*modes, "gather")}

@@ -45,6 +45,7 @@ def measure(w: int, h: int, calls: int) -> None:
                 frame=frame.number, seed=p.seed, depth_slope=p.depth_slope,
                 backend="numba", disk=p.distance == "cycles",
                 hidden_light=p.hidden_light, contact=p.contact,
+                hidden_mirror=p.hidden_mirror,
             )  # fmt: skip
             return time.perf_counter() - t0, in_kernel["s"]
 

@@ -18,7 +18,7 @@ samples and agree to float32 rounding.
 Tables are read flat, with unsigned indices: numba then emits no
 negative-index wrap-around test per read. A pixel's lighting, depth, surface
 area and slot share one 32-byte texel, so a sample's reads touch one cache
-line.
+line (a hidden-surface sample's mirror image, a second).
 
 Pixels are independent and each writes its own output row, so the result does
 not depend on the thread count, the schedule or the order the pixels are

@@ -157,6 +157,9 @@ def sampling_cases() -> list[Case]:
         for hidden in (1.0, 0.5):
             build, check = _sampling(frame, distance, variance=True, hidden=hidden, mirror=True)
             cases.append(Case(f"{distance}-mirror-hidden{hidden:g}", build, check))
+        # A crop: the mirror image's pixel in the crop's coordinates.
+        build, check = _sampling(surface_frames()["crop"], distance, mirror=True)
+        cases.append(Case(f"{distance}-mirror-crop", build, check))
     for case, objframe in object_frames().items():
         for distance in ("surface", "cycles", "planar"):
             build, check = _sampling(objframe, distance, contact=0.5, hidden=0.5, period=29)

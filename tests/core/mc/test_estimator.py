@@ -243,6 +243,7 @@ def test_a_hidden_sample_reads_the_visible_side_mirrored(kernel, backend):
     half = flat_plane(w, h, d=d, lighting=light.copy())
     half.material[:, edge + 1 :] = 0
     half.depth[:, edge + 1 :] = np.inf
+    half.lighting[:, edge + 1 :] = 7.0  # a sample must not read where it landed
     opts = dict(KERNELS[kernel], backend=backend)
     geom, est, mirrored = shade(half, 64, mirror=True, **opts)
     gfull, _, expected = shade(full, 64, **opts)
@@ -262,6 +263,13 @@ def test_a_hidden_sample_reads_the_visible_side_mirrored(kernel, backend):
     # Inside, beyond the samples' reach of the silhouette, nothing changes.
     inner = geom.x < edge - 14
     np.testing.assert_array_equal(mirrored[inner], kept[inner])
+    # A mirror image off the centre's depth is no continuation: the rim's samples
+    # beyond the silhouette fall back to the centre as without the mirror.
+    step = dataclasses.replace(half, depth=half.depth.copy())
+    step.depth[:, :edge] = 3.0
+    _, _, stepped = shade(step, 64, mirror=True, **opts)
+    _, _, stepped_off = shade(step, 64, **opts)
+    np.testing.assert_array_equal(stepped[rim], stepped_off[rim])
 
 
 @pytest.mark.parametrize(
