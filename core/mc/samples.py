@@ -349,19 +349,8 @@ def batch_sums(
         np.clip(qy, -1, full_h, out=qy)
         fx = np.rint(qx)
         fy = np.rint(qy)
-        ix = fx.astype(np.intp)
-        iy = fy.astype(np.intp)
-        if ox:
-            ix -= ox
-        if oy:
-            iy -= oy
-        # Negative coordinates wrap to huge unsigned values: one test per axis.
-        inside = ix.view(np.uintp) < w
-        inside &= iy.view(np.uintp) < h
         centre_idx = np.repeat(pix.idx[a:b], c)
-        q = iy * w
-        q += ix
-        q = np.where(inside, q, centre_idx)
+        q, inside = _crop_index(fx, fy, ox, oy, w, h, centre_idx)
         ok = inside & (np.take(slots, q, mode="clip") == mat)
         zq = np.take(depth32, q, mode="clip")
         zp = np.repeat(pix.z[a:b], c)
@@ -529,6 +518,24 @@ def batch_sums(
     return sums, var, fallback
 
 
+def _crop_index(fx, fy, ox: int, oy: int, w: int, h: int, elsewhere):
+    """The flat index into a (h, w) crop at origin (ox, oy) of pixels at whole image
+    coordinates ``(fx, fy)`` (float arrays), ``elsewhere`` off the crop, and (n,) bool
+    whether on it."""
+    ix = fx.astype(np.intp)
+    iy = fy.astype(np.intp)
+    if ox:
+        ix -= ox
+    if oy:
+        iy -= oy
+    # Negative coordinates wrap to huge unsigned values: one test per axis.
+    inside = ix.view(np.uintp) < w
+    inside &= iy.view(np.uintp) < h
+    q = iy * w
+    q += ix
+    return np.where(inside, q, elsewhere), inside
+
+
 def _mirrored(
     hidden, px, py, fx, fy, zp, tol, mat, centre_idx,
     slots, objects, depth32, w, h, ox, oy,
@@ -544,18 +551,8 @@ def _mirrored(
     mx -= np.take(fx, at)
     my = np.float32(2.0) * np.take(py, at)
     my -= np.take(fy, at)
-    ix = mx.astype(np.intp)
-    iy = my.astype(np.intp)
-    if ox:
-        ix -= ox
-    if oy:
-        iy -= oy
-    inside = ix.view(np.uintp) < w
-    inside &= iy.view(np.uintp) < h
     centre = np.take(centre_idx, at)
-    q = iy * w
-    q += ix
-    q = np.where(inside, q, centre)
+    q, inside = _crop_index(mx, my, ox, oy, w, h, centre)
     ok = inside & (np.take(slots, q) == np.take(mat, at))
     if objects is not None:
         ok &= np.take(objects, q) == np.take(objects, centre)
