@@ -46,6 +46,23 @@ def neighbour_table(index, mat, where, w, h):
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _neighbour(values, active, table, k, e):
+    """Whether neighbour ``e`` of pixel k (its ``table`` entry) holds a value (in the
+    frame, active, not NaN), and that value's three channels (zeros where not)."""
+    j = table[k, e]
+    v0 = v1 = v2 = 0.0
+    ok = False
+    if j >= 0:
+        uj = np.uint64(j)
+        if active[uj] and not np.isnan(values[uj, 0]):
+            ok = True
+            v0 = values[uj, 0]
+            v1 = values[uj, 1]
+            v2 = values[uj, 2]
+    return ok, v0, v1, v2
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _neighbours(values, active, table, k):
     """Mean and standard deviation per channel of pixel k's neighbours holding a value
     (:func:`neighbourhood_pass` of one pixel): (m0, m1, m2, s0, s1, s2)."""
@@ -53,16 +70,7 @@ def _neighbours(values, active, table, k):
     q0 = q1 = q2 = 0.0
     count = 0.0
     for e in range(9):
-        j = table[k, e]
-        v0 = v1 = v2 = 0.0
-        ok = False
-        if j >= 0:
-            uj = np.uint64(j)
-            if active[uj] and not np.isnan(values[uj, 0]):
-                ok = True
-                v0 = values[uj, 0]
-                v1 = values[uj, 1]
-                v2 = values[uj, 2]
+        ok, v0, v1, v2 = _neighbour(values, active, table, k, e)
         t0 += v0
         t1 += v1
         t2 += v2
@@ -442,16 +450,7 @@ def reuse_finish_history(
                 k = k0 + j
                 if finite_clamp:
                     for e in range(9):
-                        jj = table[k, e]
-                        v0 = v1 = v2 = 0.0
-                        ok = False
-                        if jj >= 0:
-                            uj = np.uint64(jj)
-                            if active[uj] and not np.isnan(value[uj, 0]):
-                                ok = True
-                                v0 = value[uj, 0]
-                                v1 = value[uj, 1]
-                                v2 = value[uj, 2]
+                        ok, v0, v1, v2 = _neighbour(value, active, table, k, e)
                         fb[(3 * e) * _FB + j] = v0
                         fb[(3 * e + 1) * _FB + j] = v1
                         fb[(3 * e + 2) * _FB + j] = v2
