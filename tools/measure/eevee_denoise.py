@@ -27,14 +27,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
+from compared import Scorer, cvsss, finished, mean_row, render_passes
 
-from cvsss.core.eval.users_frame import frame_figures
-from cvsss.core.io.exr import read_frame, read_result, read_rgb
+from cvsss.core.io.exr import read_frame
 from cvsss.sss_addon.blender.denoise_frame import DenoiseSettings, denoise_frame
 
 VARIANTS = {
@@ -42,10 +39,6 @@ VARIANTS = {
     "rgb_sss": DenoiseSettings(prefilter="NONE", guides="RGB", subsurface_only=True),
     "albedo_sss": DenoiseSettings(prefilter="NONE", guides="RGB_ALBEDO", subsurface_only=True),
 }
-
-
-def _cvsss(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "cvsss.sss_addon.cli.main", *args], check=True)
 
 
 def main() -> int:
@@ -56,35 +49,23 @@ def main() -> int:
     parser.add_argument("--frames", required=True, help="A-B, as the compare's")
     parser.add_argument("--method", default="as_ccv")
     args = parser.parse_args()
-    passes = args.out / "passes"
-    _cvsss(
-        "render", str(args.blend), "--frames", args.frames, "--out", str(args.out),
-        "--engine", "EEVEE", "--passes-only", "--no-ground-truth", "--no-reference",
-        "--no-denoise", "--quiet",
-    )  # fmt: skip
-    _cvsss(
-        "post", str(passes), "--out", str(args.out / "post"), "--method", args.method,
-        "--no-denoise", "--quiet",
-    )  # fmt: skip
-    (renders,) = sorted((args.compare / "renders").glob("eevee_*"))
+    passes = render_passes(args.blend, args.frames, args.out, "EEVEE")
+    post = args.out / "post"
+    cvsss(
+        "post", str(passes), "--out", str(post), "--method", args.method, "--no-denoise", "--quiet"
+    )
+    score = Scorer(args.compare, "eevee_")
     scores: dict[str, list] = {}
     for path in sorted(passes.glob("*.exr")):
         number = path.stem
         frame = read_frame(path)
-        result = read_result(args.out / "post" / args.method / f"{number}.exr")
-        mask = result["Mask"] > 0
-        finished = np.ones((*mask.shape, 4), np.float32)
-        finished[..., :3] = result["Composite"][..., :3]
-        images = {"none": finished}
+        image, mask = finished(post, args.method, number)
+        images = {"none": image}
         for name, settings in VARIANTS.items():
-            images[name] = denoise_frame(finished, frame.albedo, None, settings, mask)
-        truth = read_rgb(args.compare / "ground_truth" / "material" / f"{number}.exr")
-        truth_off = read_rgb(args.compare / "ground_truth" / "off" / f"{number}.exr")
-        off = read_rgb(renders / f"off_{number}.exr")
-        for name, image in images.items():
-            f = frame_figures(image, truth, truth_off, off)
-            scores.setdefault(name, []).append((f.psnr_whole_db, f.psnr_subsurface_db, f.effect_db))
-    table = {name: np.mean(rows, axis=0).round(2).tolist() for name, rows in scores.items()}
+            images[name] = denoise_frame(image, frame.albedo, None, settings, mask)
+        for name, each in images.items():
+            scores.setdefault(name, []).append(score(each, number))
+    table = {name: mean_row(rows) for name, rows in scores.items()}
     for name, (whole, sss, effect) in table.items():
         print(f"{name:12s} whole {whole:6.2f}  subsurface {sss:6.2f}  effect {effect:6.2f} dB")
     (args.out / "eevee_denoise.json").write_text(json.dumps(table, indent=1))

@@ -24,21 +24,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
+from compared import Scorer, cvsss, finished, mean_row, render_passes
 
-from cvsss.core.eval.users_frame import frame_figures
-from cvsss.core.io.exr import read_frame, read_result, read_rgb
+from cvsss.core.io.exr import read_frame
 from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
 
 METHODS = ("as_ccv", "reference")
-
-
-def _cvsss(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "cvsss.sss_addon.cli.main", *args], check=True)
 
 
 def main() -> int:
@@ -49,37 +42,23 @@ def main() -> int:
     parser.add_argument("--frames", required=True, help="A-B, as the compare's")
     parser.add_argument("--engine", choices=("CYCLES", "EEVEE"), required=True)
     args = parser.parse_args()
-    passes = args.out / "passes"
-    _cvsss(
-        "render", str(args.blend), "--frames", args.frames, "--out", str(args.out),
-        "--engine", args.engine, "--passes-only", "--no-ground-truth", "--no-reference",
-        "--no-denoise", "--quiet",
-    )  # fmt: skip
-    prefix = "eevee_" if args.engine == "EEVEE" else "cycles_"
-    (renders,) = sorted((args.compare / "renders").glob(prefix + "*"))
+    passes = render_passes(args.blend, args.frames, args.out, args.engine)
+    score = Scorer(args.compare, "eevee_" if args.engine == "EEVEE" else "cycles_")
     table = {}
     for mirror in ("false", "true"):
         post = args.out / f"mirror_{mirror}"
-        _cvsss(
+        cvsss(
             "post", str(passes), "--out", str(post), "--method", ",".join(METHODS),
             "--hidden-mirror", mirror, "--no-denoise", "--quiet",
         )  # fmt: skip
         for method in METHODS:
             rows = []
             for path in sorted(passes.glob("*.exr")):
-                number = path.stem
-                result = read_result(post / method / f"{number}.exr")
-                mask = result["Mask"] > 0
-                image = np.ones((*mask.shape, 4), np.float32)
-                image[..., :3] = result["Composite"][..., :3]
+                image, mask = finished(post, method, path.stem)
                 if args.engine == "EEVEE" and method == "as_ccv":
                     image = denoise_frame(image, read_frame(path).albedo, None, EEVEE_DENOISE, mask)
-                truth = read_rgb(args.compare / "ground_truth" / "material" / f"{number}.exr")
-                truth_off = read_rgb(args.compare / "ground_truth" / "off" / f"{number}.exr")
-                off = read_rgb(renders / f"off_{number}.exr")
-                f = frame_figures(image, truth, truth_off, off)
-                rows.append((f.psnr_whole_db, f.psnr_subsurface_db, f.effect_db))
-            whole, sss, effect = np.mean(rows, axis=0).round(2).tolist()
+                rows.append(score(image, path.stem))
+            whole, sss, effect = mean_row(rows)
             table[f"{method}, mirror {mirror}"] = [whole, sss, effect]
             print(
                 f"{method:9s} mirror {mirror:5s}  whole {whole:6.2f}  subsurface {sss:6.2f}"

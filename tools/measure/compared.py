@@ -1,0 +1,67 @@
+"""Posts scored against a ``cvsss compare`` folder (imported by the scripts beside it).
+
+A compare folder (``cvsss compare BLEND --out COMPARE``) holds the ground truth
+(``ground_truth/material``, ``ground_truth/off``) and the engine's frame without
+subsurface (``renders/<engine>_<n>/off_####.exr``). The scripts here render the
+same frames' passes, post them in some variants and score each finished frame
+with ``core.eval.users_frame.frame_figures``: whole frame / subsurface pixels /
+subsurface effect, dB.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from cvsss.core.eval.users_frame import frame_figures
+from cvsss.core.io.exr import read_result, read_rgb
+
+
+def cvsss(*args: str) -> None:
+    """Run the ``cvsss`` command line with this Python."""
+    subprocess.run([sys.executable, "-m", "cvsss.sss_addon.cli.main", *args], check=True)
+
+
+def render_passes(blend: Path, frames: str, out: Path, engine: str) -> Path:
+    """Render ``frames`` ("A-B") of ``blend`` as passes with ``engine`` into ``out``;
+    returns the passes folder."""
+    cvsss(
+        "render", str(blend), "--frames", frames, "--out", str(out), "--engine", engine,
+        "--passes-only", "--no-ground-truth", "--no-reference", "--no-denoise", "--quiet",
+    )  # fmt: skip
+    return out / "passes"
+
+
+def finished(post: Path, method: str, number: str) -> tuple[np.ndarray, np.ndarray]:
+    """A posted frame as a finished RGBA frame (alpha 1) and its (H, W) bool mask of
+    subsurface pixels."""
+    result = read_result(post / method / f"{number}.exr")
+    mask = result["Mask"] > 0
+    image = np.ones((*mask.shape, 4), np.float32)
+    image[..., :3] = result["Composite"][..., :3]
+    return image, mask
+
+
+class Scorer:
+    """Scores finished frames against a compare folder's ground truth (``prefix``:
+    the engine's renders folder, ``eevee_`` or ``cycles_``)."""
+
+    def __init__(self, compare: Path, prefix: str):
+        self.compare = compare
+        (self.renders,) = sorted((compare / "renders").glob(prefix + "*"))
+
+    def __call__(self, image: np.ndarray, number: str) -> tuple[float, float, float]:
+        """(whole, subsurface, effect) dB of frame ``number`` ("0021")."""
+        truth = read_rgb(self.compare / "ground_truth" / "material" / f"{number}.exr")
+        truth_off = read_rgb(self.compare / "ground_truth" / "off" / f"{number}.exr")
+        off = read_rgb(self.renders / f"off_{number}.exr")
+        f = frame_figures(image, truth, truth_off, off)
+        return f.psnr_whole_db, f.psnr_subsurface_db, f.effect_db
+
+
+def mean_row(rows: list[tuple[float, float, float]]) -> list[float]:
+    """The mean over frames of (whole, subsurface, effect), to 0.01 dB."""
+    return np.mean(rows, axis=0).round(2).tolist()
