@@ -380,9 +380,9 @@ def batch_sums(
                 touching = _touching(other, qx, qy, zq, zp, centre, r, touch, pix, surf, local)
                 if not touching.any():
                     touching = None
-        # Hidden surface: a rejected sample on the image that landed on the background or
-        # another material or object (not in front of the centre, an occluder, nor
-        # touching it). With ``mirror`` it reads the point opposite it through the
+        # Hidden surface: a rejected sample on the image that landed on the background,
+        # another material or object, or the centre's surface beyond the depth tolerance
+        # (not in front of the centre, an occluder, nor touching it). With ``mirror`` it reads the point opposite it through the
         # centre where that point is on the centre's surface; otherwise it counts with
         # the centre's light less (1 − β) of its direct part. Both at its planar weight
         # (module doc, *Hidden surface*).

@@ -859,21 +859,15 @@ def _spread(values: np.ndarray, known: np.ndarray, wanted: np.ndarray, steps: in
         todo = wanted & ~known
         if not todo.any():
             break
+        # The known values, -inf elsewhere and on a one-pixel border; each pixel's
+        # best is the largest of its 8 neighbours' (shifted views of the padding).
+        pad = np.pad(np.where(known, values, -np.inf), 1, constant_values=-np.inf)
         best = np.full(values.shape, -np.inf)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy == dx == 0:
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                if dy == dx == 1:
                     continue
-                src = (
-                    slice(max(dy, 0), height + min(dy, 0)),
-                    slice(max(dx, 0), width + min(dx, 0)),
-                )
-                dst = (
-                    slice(max(-dy, 0), height + min(-dy, 0)),
-                    slice(max(-dx, 0), width + min(-dx, 0)),
-                )
-                candidate = np.where(known[src], values[src], -np.inf)
-                np.maximum(best[dst], candidate, out=best[dst])
+                np.maximum(best, pad[dy : dy + height, dx : dx + width], out=best)
         reached = todo & np.isfinite(best)
         values[reached] = best[reached]
         known |= reached
