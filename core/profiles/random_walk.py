@@ -47,8 +47,11 @@ measured f for A in [0.1, 0.9].
 Not modelled: the oblique view's asymmetric profile (at 60 degrees the best
 symmetric d differs by up to 17 % and the edge response by up to 23 % of its
 level), the Principled IOR and Roughness (RANDOM_WALK's entry; ≤ 1.2 % in f,
-≤ 3 % in e between 1.33 and 2.0, 0 and 1) and the Subsurface IOR beyond its
-part in Skin's ℓ (≤ 0.3 % in f, ≤ 0.7 % in e).
+≤ 3 % in e between 1.33 and 2.0, 0 and 1), the Subsurface IOR beyond its
+part in Skin's ℓ (≤ 0.3 % in f, ≤ 0.7 % in e), and the light a thin part
+loses through its far side: a free slab two mean free paths thick returns 0.67
+of a deep slab's red light, and what comes back from beyond the far side is
+not in the passes (docs/explanation/accuracy.md §2.3).
 
 All lengths in scene units; albedos linear in [0, 1].
 """

@@ -15,6 +15,7 @@ albedo is resolved alike by the pixel grid. Run with the project on the path::
     python tools/random_walk/cases.py view > view.jsonl
     python tools/random_walk/cases.py curvature --samples 512 > curvature.jsonl
     python tools/random_walk/cases.py spheres > spheres.jsonl   # needs the fitted data
+    python tools/random_walk/cases.py thickness --samples 512 > thickness.jsonl
 """
 
 from __future__ import annotations
@@ -59,6 +60,11 @@ CURVATURE_ALBEDOS = ((0.05, 0.15, 0.3), (0.45, 0.6, 0.75), (0.85, 0.9, 0.95))
 VIEW_ANGLES = (30, 45, 60, 75, 85)
 PIXEL = 0.001  # scene units
 SCALE = 0.05  # Subsurface Scale
+#: The demo's marble (demo_blend.scenes.preset_material("marble")): Base Color, Subsurface
+#: Radius and Scale, so that the red channel's mean free path is 1 cm.
+MARBLE = {"albedo": [0.7753, 0.741, 0.7076], "radius": [1.0, 0.8038, 0.672], "scale": 0.12566}
+#: Slab thicknesses of the thickness cases, in the marble's red mean free paths (and a deep one).
+THICKNESSES = (1, 2, 4, 8, 100)
 
 
 def radius_for(albedo, method: str, target_px: float, subsurface_ior: float = 1.4) -> list:
@@ -331,6 +337,16 @@ def grid(kind: str, samples: int, target: float) -> list[dict]:
                         **{key: value},
                     )
                 )
+    elif kind == "thickness":
+        # Whole slabs of the demo's marble under a sun straight down, from thin to deep:
+        # what a walk loses through the far side when nothing below sends it back.
+        ell = MARBLE["radius"][0] * MARBLE["scale"] / (4 * math.pi)
+        for t in THICKNESSES:
+            out.append(
+                {"name": f"thickness_marble_{t}", "method": "RANDOM_WALK", **MARBLE,
+                 "slab_depth": round(t * ell, 6), "slab_size": 2.0, "occluder": False,
+                 "pixel": 0.01, "width": 32, "height": 16, "samples": samples}
+            )  # fmt: skip
     else:
         raise SystemExit(f"unknown grid {kind!r}")
     return out
@@ -350,6 +366,7 @@ def main(argv=None) -> int:
             "scale",
             "sensitivity",
             "spheres",
+            "thickness",
         ),
     )
     ap.add_argument("--samples", type=int, default=1024)
