@@ -123,7 +123,7 @@ def _help(parser: argparse.ArgumentParser, command: str) -> str:
 
 
 def cli_page() -> str:
-    from cvsss.sss_addon.cli.main import build_parser
+    from cvsss.sss_addon.cli.parser import build_parser
 
     os.environ["COLUMNS"] = "100"  # argparse wraps at the terminal's width
     parser = build_parser()

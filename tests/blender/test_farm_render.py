@@ -16,6 +16,7 @@ pytest.importorskip("distributed", reason="needs the cvsss[farm] extra")
 
 from cvsss.core.eval.compare import output_differences  # noqa: E402
 from cvsss.sss_addon.cli import main as cli  # noqa: E402
+from cvsss.sss_addon.cli.parser import build_parser  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -80,7 +81,7 @@ def test_chunks_run_the_files_python_as_the_whole_render_does(addon):
     from cvsss.sss_addon.farm.passes import chunk_argv
 
     job = Job(None, None, [1, 2], Path("."), [], SSSParams())
-    parser = cli.build_parser()
+    parser = build_parser()
     for choice in (None, True, False):
         job.autoexec = choice
         argv = chunk_argv(Path("scene.blend"), Path("out"), 1, 2, job, 1)

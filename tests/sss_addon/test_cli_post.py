@@ -9,6 +9,7 @@ from cli_helpers import run_cli
 from cvsss.core.io.exr import read_result, write_passes
 from cvsss.core.synthetic import sequence
 from cvsss.sss_addon.cli import main as cli
+from cvsss.sss_addon.cli.parser import build_parser
 
 
 @pytest.fixture(scope="module")
@@ -186,7 +187,7 @@ def _subcommands(parser, path=()):
 def test_every_help_prints(capsys):
     """`cvsss <command> --help` works for every command: help texts pass through
     argparse's %-formatting (a parameter's "7 %" once broke `post --help`)."""
-    commands = list(_subcommands(cli.build_parser()))
+    commands = list(_subcommands(build_parser()))
     assert {("post",), ("render",), ("demo",)} <= {c for c, _ in commands}
     for command, _ in commands:
         with pytest.raises(SystemExit) as stop:

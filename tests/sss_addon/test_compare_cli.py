@@ -4,6 +4,7 @@ import pytest
 
 from cvsss.sss_addon.cli import main as cli
 from cvsss.sss_addon.cli.compare import settings_from_args
+from cvsss.sss_addon.cli.parser import build_parser
 
 
 def _error(capfd, *argv) -> str:
@@ -46,7 +47,7 @@ def test_missing_blend(tmp_path, capfd):
 
 
 def test_settings_one_per_cycles_sample_count_and_case_is_ignored():
-    args = cli.build_parser().parse_args(
+    args = build_parser().parse_args(
         [
             "compare",
             "x.blend",
@@ -63,5 +64,5 @@ def test_settings_one_per_cycles_sample_count_and_case_is_ignored():
     )
     assert settings_from_args(args) == [("EEVEE", None, False), ("CYCLES", 16, False),
                                         ("CYCLES", 64, False)]  # fmt: skip
-    args = cli.build_parser().parse_args(["compare", "x.blend", "--frames", "1", "--out", "o"])
+    args = build_parser().parse_args(["compare", "x.blend", "--frames", "1", "--out", "o"])
     assert settings_from_args(args) == [("CYCLES", None, True), ("EEVEE", None, False)]
