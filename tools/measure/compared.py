@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from cvsss.core.eval.users_frame import frame_figures
-from cvsss.core.io.exr import read_result, read_rgb
+from cvsss.core.io.exr import read_frame, read_result, read_rgb
+from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
 
 
 def cvsss(*args: str) -> None:
@@ -65,3 +66,16 @@ class Scorer:
 def mean_row(rows: list[tuple[float, float, float]]) -> list[float]:
     """The mean over frames of (whole, subsurface, effect), to 0.01 dB."""
     return np.mean(rows, axis=0).round(2).tolist()
+
+
+def scored_post(post: Path, method: str, passes: Path, score: Scorer, denoise: bool) -> list[float]:
+    """The mean over ``passes``' frames of (whole, subsurface, effect) dB of ``method``'s
+    finished frames in ``post``; with ``denoise`` their subsurface pixels are denoised
+    first, as Apply on Render does on EEVEE (``EEVEE_DENOISE``)."""
+    rows = []
+    for path in sorted(passes.glob("*.exr")):
+        image, mask = finished(post, method, path.stem)
+        if denoise:
+            image = denoise_frame(image, read_frame(path).albedo, None, EEVEE_DENOISE, mask)
+        rows.append(score(image, path.stem))
+    return mean_row(rows)

@@ -31,10 +31,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-from compared import Scorer, cvsss, finished, mean_row, render_passes
-
-from cvsss.core.io.exr import read_frame
-from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
+from compared import Scorer, cvsss, render_passes, scored_post
 
 
 def main() -> int:
@@ -63,12 +60,8 @@ def main() -> int:
                     times[n].append((float(row["sampling_ms"]), float(row["frame_ms"])))
     table = {}
     for n in counts:
-        rows = []
-        for path in sorted(passes.glob("*.exr")):
-            image, mask = finished(args.out / f"beta_max_{n}", "as_ccv", path.stem)
-            image = denoise_frame(image, read_frame(path).albedo, None, EEVEE_DENOISE, mask)
-            rows.append(score(image, path.stem))
-        whole, sss, effect = mean_row(rows)
+        post = args.out / f"beta_max_{n}"
+        whole, sss, effect = scored_post(post, "as_ccv", passes, score, denoise=True)
         sampling, frame = np.median(np.array(times[n]), axis=0).round(1).tolist()
         table[n] = {"whole": whole, "subsurface": sss, "effect": effect,
                     "sampling_ms": sampling, "frame_ms": frame}  # fmt: skip

@@ -26,10 +26,7 @@ import argparse
 import json
 from pathlib import Path
 
-from compared import Scorer, cvsss, finished, mean_row, render_passes
-
-from cvsss.core.io.exr import read_frame
-from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
+from compared import Scorer, cvsss, render_passes, scored_post
 
 METHODS = ("as_ccv", "reference")
 
@@ -52,13 +49,8 @@ def main() -> int:
             "--hidden-mirror", mirror, "--no-denoise", "--quiet",
         )  # fmt: skip
         for method in METHODS:
-            rows = []
-            for path in sorted(passes.glob("*.exr")):
-                image, mask = finished(post, method, path.stem)
-                if args.engine == "EEVEE" and method == "as_ccv":
-                    image = denoise_frame(image, read_frame(path).albedo, None, EEVEE_DENOISE, mask)
-                rows.append(score(image, path.stem))
-            whole, sss, effect = mean_row(rows)
+            denoise = args.engine == "EEVEE" and method == "as_ccv"
+            whole, sss, effect = scored_post(post, method, passes, score, denoise)
             table[f"{method}, mirror {mirror}"] = [whole, sss, effect]
             print(
                 f"{method:9s} mirror {mirror:5s}  whole {whole:6.2f}  subsurface {sss:6.2f}"
