@@ -150,6 +150,26 @@ def subsurface_model(material) -> tuple[str, dict]:
     return method, options
 
 
+def walk_mean_free_path(material) -> float | None:
+    """The longest channel's mean free path (scene units) of the random walk the post
+    models for ``material``, or None when it models none (Christensen-Burley, a
+    measured preset or an override)."""
+    settings = _settings(material)
+    if settings is not None and (settings.preset != "NONE" or settings.use_override):
+        return None
+    method, options = subsurface_model(material)
+    if method == "BURLEY":
+        return None
+    ell = random_walk.mean_free_path(
+        options["subsurface_radius"],
+        options["subsurface_scale"],
+        options["base_color"],
+        method,
+        options["subsurface_ior"],
+    )
+    return float(max(ell))
+
+
 def model_summary(material) -> dict | None:
     """What the post models of ``material``'s subsurface, for the material panel.
 

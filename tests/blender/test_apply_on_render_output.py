@@ -281,6 +281,26 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     assert denoised not in scene_notes(scene)
 
 
+def test_the_panel_notes_parts_thin_for_random_walk(scene):
+    """The flash demo's marble table top is 2 cm thick, two mean free paths of its marble
+    (Burley d = 1 cm in red, the demo's D_MAX); every other subsurface object is over
+    10 cm. Only with Random Walk, and only while under 4 mean free paths, is it noted."""
+    note = (
+        "'flash Marble Top' is thin for Random Walk (under 4 mean free paths): Cycles "
+        "loses light through the far side, the post keeps it (brighter than Cycles)"
+    )
+    assert note not in scene_notes(scene)  # Christensen-Burley: no walk
+    for material in bpy.data.materials:
+        for node in material.node_tree.nodes if material.node_tree else ():
+            if node.bl_idname == "ShaderNodeBsdfPrincipled":
+                node.subsurface_method = "RANDOM_WALK"
+    assert [n for n in scene_notes(scene) if "Random Walk" in n] == [note]
+    top = scene.objects["flash Marble Top"]
+    top.scale.z *= 2.5  # 5 cm: five mean free paths
+    bpy.context.view_layer.update()
+    assert [n for n in scene_notes(scene) if "Random Walk" in n] == []
+
+
 def test_ui_finishes_through_the_users_compositor(scene, tmp_path, snapshot, monkeypatch):
     """With the UI (the handlers on Blender's render thread, the frames finished after the
     render job) the compositor runs on the finished frames as in background mode."""

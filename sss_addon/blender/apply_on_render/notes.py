@@ -4,7 +4,8 @@ The panel lists :func:`scene_notes` under *Apply on Render*; a render logs
 :func:`bypassed` as it begins. Each note is a limit the user can see
 coming: a part of the render that Blender's API leaves out (the sequencer,
 other view layers), or a pass that differs from a plain render's because the
-pass render has Subsurface Weight 0. Everything here reads settings only (the
+pass render has Subsurface Weight 0; or where the post's model is known to
+part from Cycles (:func:`model_notes`). Everything here reads settings only (the
 panel draws it, and drawing may not create datablocks).
 """
 
@@ -74,6 +75,47 @@ def _pass_notes(scene, layer) -> list[str]:
     return notes
 
 
+#: Parts thinner than this many mean free paths of their Random Walk material are
+#: noted: Cycles' walk loses light through their far side (a free slab of the demo's
+#: marble returns 0.87 of a deep slab's red light at 4 mean free paths, 0.97 at 8;
+#: docs/explanation/accuracy.md §2.3), which the post, seeing the near side only, keeps.
+THIN_MEAN_FREE_PATHS = 4.0
+
+
+def model_notes(scene) -> list[str]:
+    """Where the post's model is known to part from Cycles on this scene: objects thin
+    for their Random Walk material (smallest dimension under
+    :data:`THIN_MEAN_FREE_PATHS` mean free paths). Reads the objects' material slots
+    and sizes only."""
+    paths: dict[str, float | None] = {}
+    thin = []
+    for obj in scene.objects:
+        if obj.type != "MESH" or obj.hide_render:
+            continue
+        longest = 0.0
+        for slot in obj.material_slots:
+            material = slot.material
+            if material is None:
+                continue
+            if material.name not in paths:
+                paths[material.name] = (
+                    sss_materials.walk_mean_free_path(material)
+                    if sss_materials.participates(material)
+                    else None
+                )
+            longest = max(longest, paths[material.name] or 0.0)
+        if longest > 0 and min(obj.dimensions) < THIN_MEAN_FREE_PATHS * longest:
+            thin.append(obj.name)
+    if not thin:
+        return []
+    names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
+    return [
+        f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
+        f"{THIN_MEAN_FREE_PATHS:g} mean free paths): Cycles loses light through the far "
+        "side, the post keeps it (brighter than Cycles)"
+    ]
+
+
 def scene_notes(scene) -> list[str]:
     """Short notes for the panel: what Apply on Render will do differently with this scene."""
     notes = []
@@ -83,4 +125,4 @@ def scene_notes(scene) -> list[str]:
         notes.append("Needs Cycles or EEVEE as the render engine")
     if scene.render.is_movie_format:
         notes.append("Movie: frames are encoded after the last one")
-    return notes + [note[0].upper() + note[1:] for note in bypassed(scene)]
+    return notes + [note[0].upper() + note[1:] for note in bypassed(scene) + model_notes(scene)]

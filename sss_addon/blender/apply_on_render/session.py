@@ -50,7 +50,7 @@ from ..render import job_from_scene, warmup_frames
 from . import compositor
 from .engine import Finished, rendering
 from .frame_passes import FramePasses
-from .notes import bypassed
+from .notes import bypassed, model_notes
 from .scenes import (
     DisplaySetup,
     camera_animated,
@@ -163,7 +163,7 @@ class Session:
         r = scene.render
         self.movie = bool(r.is_movie_format)
         self.overwrite, self.placeholder = bool(r.use_overwrite), bool(r.use_placeholder)
-        self.notes = bypassed(scene)
+        self.notes = bypassed(scene) + model_notes(scene)
         self.setup: KeepingPassSetup | None = None
         self.output = None
         self.groups: list = []  # the output scene's copies of the compositor's node groups
