@@ -1,7 +1,7 @@
 """What Apply on Render will do differently from the user's own render, said before it starts.
 
 The panel lists :func:`scene_notes` under *Apply on Render*; a render logs
-:func:`bypassed` as it begins. Each note is a limit the user can see
+:func:`bypassed` and :func:`model_notes` as it begins. Each note is a limit the user can see
 coming: a part of the render that Blender's API leaves out (the sequencer,
 other view layers), or a pass that differs from a plain render's because the
 pass render has Subsurface Weight 0; or where the post's model is known to
