@@ -407,8 +407,8 @@ class SSSParams(_Params):
         "(behind its silhouettes, under objects resting on it), where the profile's samples "
         "land on the background or another material or object and Mirror Hidden Light does "
         "not apply: 1 takes the pixel's own light (no assumption); below 1 darkens it, as "
-        "where the back of an object or the ground under it lies in its shadow (front or top light: 0.75 brought the demo's flash rims from "
-        "+7 % to ±1 % of Cycles)",
+        "where the back of an object or the ground under it lies in its shadow (front or "
+        "top light: 0.75 brought the demo's flash rims from +7 % to ±1 % of Cycles)",
         lo=0.0,
         hi=1.0,
         advanced=True,

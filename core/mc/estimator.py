@@ -98,9 +98,9 @@ surface (*Objects*) or lies in front of the centre by more than a tenth of
 its depth (an occluder). With ``mirror`` it reads the pixel opposite it
 through the centre, ``2·p − q``, when that pixel is on the crop, of the
 centre's material and object, and within ``depth_slope·r`` of the centre's
-depth (the tangent-plane test is not applied to it): the surface on the far side of a silhouette is taken to continue as the
-visible side the sample's mirror image lands on, as an image filter reflects
-at a border. The rim of a candle lit from above then loses its light to the
+depth (the tangent-plane test is not applied to it): the surface on the far
+side of a silhouette is taken to continue as the visible side the sample's
+mirror image lands on, as an image filter reflects at a border. The rim of a candle lit from above then loses its light to the
 dim wall below it, as Cycles' does, where reading the centre's own light kept
 it; under light that is even across the silhouette both read the same. Where
 the mirrored pixel is not on the surface either, the sample counts the centre's
@@ -243,8 +243,8 @@ def estimate_distant(
     var_sums, fallback = distant_sums(
         geom, profile, counts, active, lighting, depth, frame=frame, seed=seed,
         depth_slope=depth_slope, variance=variance, disk=disk, hidden_light=hidden_light,
-        contact=contact, hidden_mirror=hidden_mirror, chunk_samples=chunk_samples, distant=distant, start=start,
-        samples=total, backend=backend,
+        contact=contact, hidden_mirror=hidden_mirror, chunk_samples=chunk_samples,
+        distant=distant, start=start, samples=total, backend=backend,
     )  # fmt: skip
     spread = None
     if variance:

@@ -382,10 +382,10 @@ def batch_sums(
                     touching = None
         # Hidden surface: a rejected sample on the image that landed on the background,
         # another material or object, or the centre's surface beyond the depth tolerance
-        # (not in front of the centre, an occluder, nor touching it). With ``mirror`` it reads the point opposite it through the
-        # centre where that point is on the centre's surface; otherwise it counts with
-        # the centre's light less (1 − β) of its direct part. Both at its planar weight
-        # (module doc, *Hidden surface*).
+        # (not in front of the centre, an occluder, nor touching it). With ``mirror`` it
+        # reads the point opposite it through the centre where that point is on the
+        # centre's surface; otherwise it counts with the centre's light less (1 − β) of
+        # its direct part. Both at its planar weight (module doc, *Hidden surface*).
         fill = None
         if fill_value is not None or mirror:
             fill = inside & ~ok

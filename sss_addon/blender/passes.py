@@ -185,8 +185,8 @@ def engine_identifier(scene, engine: str) -> str:
 WEIGHT_AOV = "cvsss_weight"
 
 #: Version of the pass set this module renders (2: with the Object Index pass; 3: EEVEE's
-#: edge pixels labelled by :func:`.eevee_labels.eevee_labels`); the demo renders its passes again when
-#: it changes.
+#: edge pixels labelled by :func:`.eevee_labels.eevee_labels`); the demo renders its
+#: passes again when it changes.
 PASS_FORMAT = 3
 
 NEEDED_PASSES = (
