@@ -150,16 +150,23 @@ def subsurface_model(material) -> tuple[str, dict]:
     return method, options
 
 
+def own_model(material) -> tuple[str, dict] | None:
+    """:func:`subsurface_model` where the post models the node's own method; None where a
+    measured preset or an override replaces it (material panel, *Subsurface (cvsss)*)."""
+    settings = _settings(material)
+    if settings is not None and (settings.preset != "NONE" or settings.use_override):
+        return None
+    return subsurface_model(material)
+
+
 def walk_mean_free_path(material) -> float | None:
     """The longest channel's mean free path (scene units) of the random walk the post
     models for ``material``, or None when it models none (Christensen-Burley, a
     measured preset or an override)."""
-    settings = _settings(material)
-    if settings is not None and (settings.preset != "NONE" or settings.use_override):
+    model = own_model(material)
+    if model is None or model[0] == "BURLEY":
         return None
-    method, options = subsurface_model(material)
-    if method == "BURLEY":
-        return None
+    method, options = model
     ell = random_walk.mean_free_path(
         options["subsurface_radius"],
         options["subsurface_scale"],
@@ -334,10 +341,9 @@ def material_specs(materials: Iterable, scene=None) -> list[MaterialSpec]:
                 "preset_scale": float(settings.preset_scale),
                 "mm_per_unit": _mm_per_unit(scene),
             }
-        elif settings is None or not settings.use_override:
-            # The node's own profile: its method's model (an override or a preset
-            # replaces it).
-            method, options = subsurface_model(material)
+        elif (model := own_model(material)) is not None:
+            # The node's own profile: its method's model (an override replaces it).
+            method, options = model
         weight, linked = subsurface_weight(material)
         if linked:
             options["weight_linked"] = True

@@ -11,6 +11,8 @@ panel draws it, and drawing may not create datablocks).
 
 from __future__ import annotations
 
+import bpy
+
 from .. import materials as sss_materials
 from ..errors import RenderError
 from ..passes import render_view_layer
@@ -85,25 +87,22 @@ THIN_MEAN_FREE_PATHS = 4.0
 def model_notes(scene) -> list[str]:
     """Where the post's model is known to part from Cycles on this scene: objects thin
     for their Random Walk material (smallest dimension under
-    :data:`THIN_MEAN_FREE_PATHS` mean free paths). Reads the objects' material slots
-    and sizes only."""
-    paths: dict[str, float | None] = {}
+    :data:`THIN_MEAN_FREE_PATHS` mean free paths). Reads the materials' settings and the
+    objects' material slots and sizes only; no object is read without a walk."""
+    walks = {}
+    for material in bpy.data.materials:
+        if sss_materials.participates(material):
+            path = sss_materials.walk_mean_free_path(material)
+            if path:
+                walks[material.name] = path
+    if not walks:
+        return []
     thin = []
     for obj in scene.objects:
         if obj.type != "MESH" or obj.hide_render:
             continue
-        longest = 0.0
-        for slot in obj.material_slots:
-            material = slot.material
-            if material is None:
-                continue
-            if material.name not in paths:
-                paths[material.name] = (
-                    sss_materials.walk_mean_free_path(material)
-                    if sss_materials.participates(material)
-                    else None
-                )
-            longest = max(longest, paths[material.name] or 0.0)
+        slots = [s.material.name for s in obj.material_slots if s.material is not None]
+        longest = max((walks.get(name, 0.0) for name in slots), default=0.0)
         if longest > 0 and min(obj.dimensions) < THIN_MEAN_FREE_PATHS * longest:
             thin.append(obj.name)
     if not thin:
