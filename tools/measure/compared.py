@@ -10,6 +10,7 @@ subsurface effect, dB.
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,18 @@ import numpy as np
 from cvsss.core.eval.users_frame import frame_figures
 from cvsss.core.io.exr import read_frame, read_result, read_rgb
 from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
+
+
+def arguments(doc: str, compare_help: str) -> argparse.ArgumentParser:
+    """The arguments every script here takes, BLEND COMPARE OUT --frames A-B: the scene,
+    its ``cvsss compare`` folder, the output folder and the compare's frames (the
+    parser's description is the first line of ``doc``)."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("blend", type=Path)
+    parser.add_argument("compare", type=Path, help=compare_help)
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--frames", required=True, help="A-B, as the compare's")
+    return parser
 
 
 def cvsss(*args: str) -> None:

@@ -25,11 +25,9 @@ EEVEE --out COMPARE``::
 
 from __future__ import annotations
 
-import argparse
 import json
-from pathlib import Path
 
-from compared import Scorer, cvsss, finished, mean_row, render_passes
+from compared import Scorer, arguments, cvsss, finished, mean_row, render_passes
 
 from cvsss.core.io.exr import read_frame
 from cvsss.sss_addon.blender.denoise_frame import DenoiseSettings, denoise_frame
@@ -42,11 +40,7 @@ VARIANTS = {
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("blend", type=Path)
-    parser.add_argument("compare", type=Path, help="a cvsss compare --engine EEVEE folder")
-    parser.add_argument("out", type=Path)
-    parser.add_argument("--frames", required=True, help="A-B, as the compare's")
+    parser = arguments(__doc__, "a cvsss compare --engine EEVEE folder")
     parser.add_argument("--method", default="as_ccv")
     args = parser.parse_args()
     passes = render_passes(args.blend, args.frames, args.out, "EEVEE")

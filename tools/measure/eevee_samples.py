@@ -24,22 +24,16 @@ EEVEE --out COMPARE``::
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
-from compared import Scorer, cvsss, render_passes, scored_post
+from compared import Scorer, arguments, cvsss, render_passes, scored_post
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("blend", type=Path)
-    parser.add_argument("compare", type=Path, help="a cvsss compare --engine EEVEE folder")
-    parser.add_argument("out", type=Path)
-    parser.add_argument("--frames", required=True, help="A-B, as the compare's")
+    parser = arguments(__doc__, "a cvsss compare --engine EEVEE folder")
     parser.add_argument("--beta-max", default="64,128,256", help="comma-separated counts")
     parser.add_argument("--rounds", type=int, default=3, help="posts per count, alternating")
     args = parser.parse_args()

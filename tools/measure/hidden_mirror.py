@@ -22,21 +22,15 @@ ENGINE --out COMPARE``::
 
 from __future__ import annotations
 
-import argparse
 import json
-from pathlib import Path
 
-from compared import Scorer, cvsss, render_passes, scored_post
+from compared import Scorer, arguments, cvsss, render_passes, scored_post
 
 METHODS = ("as_ccv", "reference")
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("blend", type=Path)
-    parser.add_argument("compare", type=Path, help="a cvsss compare folder of the same frames")
-    parser.add_argument("out", type=Path)
-    parser.add_argument("--frames", required=True, help="A-B, as the compare's")
+    parser = arguments(__doc__, "a cvsss compare folder of the same frames")
     parser.add_argument("--engine", choices=("CYCLES", "EEVEE"), required=True)
     args = parser.parse_args()
     passes = render_passes(args.blend, args.frames, args.out, args.engine)
