@@ -293,7 +293,7 @@ def test_python_drivers_follow_blenders_auto_run(scene, tmp_path, capfd):
     assert not probe.animation_data.drivers[0].driver.is_valid
 
 
-def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot):
+def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot, capfd):
     scene_state, state_diff = snapshot
     scene.frame_set(1)
     expected = _reference(scene, tmp_path / "ref")[1]
@@ -307,8 +307,13 @@ def test_still_writes_and_shows_the_finished_frame(scene, tmp_path, snapshot):
     still = Path(scene.render.filepath + ".exr")
     assert sorted(p.name for p in still.parent.iterdir()) == [still.name]
     np.testing.assert_allclose(_exr_rgba(still)[..., :3], expected, rtol=1e-6, atol=1e-7)
+    # The last log line counts the still (it said 0 delivered frames before).
+    lines = [line for line in capfd.readouterr().out.splitlines() if line.startswith("cvsss: ")]
+    assert lines[-1].startswith("cvsss: done: 1 frame(s) delivered in "), lines
     # F12: nothing written, the Render Result is the finished frame.
     assert bpy.ops.render.render() == {"FINISHED"}
+    lines = [line for line in capfd.readouterr().out.splitlines() if line.startswith("cvsss: ")]
+    assert lines[-1].startswith("cvsss: done: 1 frame(s) delivered in "), lines
     saved = tmp_path / "render_result.exr"
     bpy.data.images["Render Result"].save_render(str(saved), scene=scene)
     np.testing.assert_allclose(_exr_rgba(saved)[..., :3], expected, rtol=1e-6, atol=1e-7)

@@ -526,9 +526,11 @@ class Session:
             with self._delivering(self.scene, lambda _frame: self._finished(frame)):
                 bpy.ops.render.render(write_still=write, scene=self.scene.name)
         compositor.refresh_render_layers(self.scene)  # the user's engine's sockets again
+        where = bpy.path.abspath(self.scene.render.filepath) if write else "the Render Result"
+        self.delivered.append((frame, where))
         if write:
-            return f"frame {self.processed[-1]} -> {bpy.path.abspath(self.scene.render.filepath)}"
-        return f"frame {self.processed[-1]} shown as the Render Result"
+            return f"frame {frame} -> {where}"
+        return f"frame {frame} shown as the Render Result"
 
     def save_render_result(self) -> None:
         """A still rendered without writing: its passes from the Render Result."""
