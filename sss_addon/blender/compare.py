@@ -69,6 +69,8 @@ def apply_on_render_settings(scene) -> dict:
         "denoise_passes": bool(s.use_denoise_passes),
         # On EEVEE passes: the finished frame's subsurface pixels denoised.
         "denoise_subsurface": bool(s.use_denoise_subsurface),
+        # Who renders the subsurface of parts thin for their Random Walk material.
+        "thin_walks": s.thin_walks,
     }
 
 
@@ -287,6 +289,7 @@ def describe(report: dict) -> str:
         f"{report['ground_truth']['seed']}. Apply on Render: {aor['method']}, warm-up "
         f"{aor['warmup_frames']} frame(s) before an animation"
         f"{'; on EEVEE its subsurface pixels denoised' if aor.get('denoise_subsurface') else ''}"
+        f"{'; thin Random Walk parts left to Cycles' if aor.get('thin_walks') == 'CYCLES' else ''}"
         ". PSNR in display space (exposure 1/p99 of the "
         "ground truth's brightest channel, sRGB, clipped); subsurface pixels: the ground truth "
         "with and without subsurface differ by more than 1 % of its peak; effect: the change "

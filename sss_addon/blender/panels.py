@@ -44,6 +44,9 @@ class SSS_PT_render(_RenderPanel, Panel):
         row = sub.row()
         row.prop(s, "warmup_frames")
         row.active = s.apply_on_render and warm_up_pays(s.method)  # temporal methods only
+        row = sub.row()
+        row.prop(s, "thin_walks")
+        row.active = s.apply_on_render and context.scene.render.engine == "CYCLES"
         if s.apply_on_render:
             for text in scene_notes(context.scene):
                 sub.label(text=text, icon="INFO")

@@ -197,6 +197,24 @@ def param_properties() -> dict[str, tuple]:
     return out
 
 
+#: ``thin_walks``: who renders the subsurface of parts thin for their Random Walk material
+#: (apply_on_render.thin_parts).
+THIN_WALKS = (
+    (
+        "CYCLES",
+        "Cycles",
+        "Cycles renders the subsurface of objects thinner than 4 mean free paths of their "
+        "Random Walk material, as in a plain render (its walk loses light through the far "
+        "side, which screen space cannot see); Cycles passes only",
+    ),
+    (
+        "POST",
+        "Post-Process",
+        "The post-process renders them like every other object: brighter than Cycles",
+    ),
+)
+
+
 class SSSSettings(PropertyGroup):
     """Parameters and run settings of screen-space subsurface scattering (per scene)."""
 
@@ -308,6 +326,15 @@ class SSSSettings(PropertyGroup):
             "only; pass files made with the other setting are rendered again"
         ),
         default=False,
+    )
+    thin_walks: EnumProperty(
+        name="Thin Random Walk Parts",
+        description=(
+            "Who renders the subsurface of objects thin for their Random Walk material "
+            "(Cycles' walk loses light through their far side)"
+        ),
+        items=THIN_WALKS,
+        default="CYCLES",
     )
     use_denoise_subsurface: BoolProperty(
         name="Denoise Subsurface",

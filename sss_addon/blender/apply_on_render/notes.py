@@ -11,11 +11,10 @@ panel draws it, and drawing may not create datablocks).
 
 from __future__ import annotations
 
-import bpy
-
 from .. import materials as sss_materials
 from ..errors import RenderError
 from ..passes import render_view_layer
+from . import thin_parts
 from .compositor import render_layer_names
 from .scenes import PASS_ENGINES, pass_engine
 from .user_render import compositing, material_index_exact, multilayer
@@ -77,42 +76,11 @@ def _pass_notes(scene, layer) -> list[str]:
     return notes
 
 
-#: Parts thinner than this many mean free paths of their Random Walk material are
-#: noted: Cycles' walk loses light through their far side (a free slab of the demo's
-#: marble returns 0.87 of a deep slab's red light at 4 mean free paths, 0.97 at 8;
-#: docs/explanation/accuracy.md §2.3), which the post, seeing the near side only, keeps.
-THIN_MEAN_FREE_PATHS = 4.0
-
-
 def model_notes(scene) -> list[str]:
-    """Where the post's model is known to part from Cycles on this scene: objects thin
-    for their Random Walk material (smallest dimension under
-    :data:`THIN_MEAN_FREE_PATHS` mean free paths). Reads the materials' settings and the
-    objects' material slots and sizes only; no object is read without a walk."""
-    walks = {}
-    for material in bpy.data.materials:
-        if sss_materials.participates(material):
-            path = sss_materials.walk_mean_free_path(material)
-            if path:
-                walks[material.name] = path
-    if not walks:
-        return []
-    thin = []
-    for obj in scene.objects:
-        if obj.type != "MESH" or obj.hide_render:
-            continue
-        slots = [s.material.name for s in obj.material_slots if s.material is not None]
-        longest = max((walks.get(name, 0.0) for name in slots), default=0.0)
-        if longest > 0 and min(obj.dimensions) < THIN_MEAN_FREE_PATHS * longest:
-            thin.append(obj.name)
-    if not thin:
-        return []
-    names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
-    return [
-        f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
-        f"{THIN_MEAN_FREE_PATHS:g} mean free paths): Cycles loses light through the far "
-        "side, the post keeps it (brighter than Cycles)"
-    ]
+    """Where the post's model is known to part from Cycles on this scene, and what
+    Apply on Render does about it: objects thin for their Random Walk material
+    (:mod:`.thin_parts`)."""
+    return thin_parts.note(scene, PASS_ENGINES.get(scene.render.engine))
 
 
 def scene_notes(scene) -> list[str]:

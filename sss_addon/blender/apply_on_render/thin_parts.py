@@ -1,0 +1,184 @@
+"""Parts thin for their Random Walk material: found, and by default left to Cycles.
+
+Cycles' random walk loses light through the far side of a part only a few mean
+free paths thick (a free slab of the demo's marble returns 0.67 of a deep
+slab's red light at 2 mean free paths, 0.87 at 4, 0.97 at 8;
+docs/explanation/accuracy.md §2.3). The post sees the near side's irradiance
+only and keeps that light, so such a part comes out brighter than Cycles
+renders it, and over a large table top the error outweighs what the post adds.
+
+With *Thin Random Walk Parts* on Cycles (the default), the pass render gives
+each thin object its own copy of those materials, taking no part
+(``sss_material.mode`` OFF), so Cycles renders their subsurface as in the
+user's own render and the post leaves their pixels as rendered; the finished
+frame's denoise then treats them as the user's denoiser would.
+:class:`CyclesRendersThin` makes the copies and puts the objects' slots back
+and removes the copies afterwards, also on error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import bpy
+
+from .. import materials as sss_materials
+
+#: Parts thinner than this many mean free paths of their Random Walk material are thin
+#: (the free slab keeps 0.87 of its red light at 4; 0.97 at 8).
+THIN_MEAN_FREE_PATHS = 4.0
+
+
+def thin_objects(scene) -> list[tuple[object, list]]:
+    """The scene's objects thin for a Random Walk material the post models, each with
+    those materials: [(object, [material, ...])], in the scene's order.
+
+    Thin: the object's smallest dimension (its bounding box, scene units) is under
+    :data:`THIN_MEAN_FREE_PATHS` times the material's longest channel's mean free path.
+    Reads settings, slots and sizes only (the panel calls it on every redraw); objects
+    are read only when some participating material has a walk.
+    """
+    walks = {}
+    for material in bpy.data.materials:
+        if sss_materials.participates(material):
+            path = sss_materials.walk_mean_free_path(material)
+            if path:
+                walks[material.name] = path
+    if not walks:
+        return []
+    found = []
+    for obj in scene.objects:
+        if obj.type != "MESH" or obj.hide_render:
+            continue
+        smallest = min(obj.dimensions)
+        thin = [
+            slot.material
+            for slot in obj.material_slots
+            if slot.material is not None
+            and smallest < THIN_MEAN_FREE_PATHS * walks.get(slot.material.name, 0.0)
+        ]
+        if thin:
+            found.append((obj, list(dict.fromkeys(thin))))
+    return found
+
+
+def cycles_renders(scene, engine: str) -> bool:
+    """Whether the pass render leaves thin Random Walk parts to Cycles (its setting, on
+    Cycles passes)."""
+    return engine == "CYCLES" and scene.sss_settings.thin_walks == "CYCLES"
+
+
+def note(scene, engine: str | None) -> list[str]:
+    """The panel's and the log's note on thin parts (none without them)."""
+    thin = [obj.name for obj, _ in thin_objects(scene)]
+    if not thin:
+        return []
+    names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
+    head = (
+        f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
+        f"{THIN_MEAN_FREE_PATHS:g} mean free paths)"
+    )
+    if engine is not None and cycles_renders(scene, engine):
+        return [f"{head}: Cycles renders {'its' if len(thin) == 1 else 'their'} subsurface"]
+    return [
+        f"{head}: Cycles loses light through the far side, the post keeps it (brighter than "
+        "Cycles)"
+    ]
+
+
+@dataclass
+class _Slot:
+    obj: str
+    index: int
+    link: str
+    material: str | None  # the object's own material of the slot (None: none)
+
+
+class CyclesRendersThin(contextlib.AbstractContextManager):
+    """Give ``objects``' slots of their thin materials copies that take no part.
+
+    Parameters
+    ----------
+    objects : list of (bpy.types.Object, list of bpy.types.Material)
+        As :func:`thin_objects` returns; linked (read-only) objects are skipped.
+
+    Each slot is linked to the object with the copy, the copy's node groups
+    copied too (the pass render switches subsurface off inside the originals'
+    groups). :meth:`restore` puts links and materials back and removes the copies.
+    """
+
+    def __init__(self, objects) -> None:
+        self.objects = [(obj.name, [m.name for m in mats]) for obj, mats in objects]
+        self._slots: list[_Slot] = []
+        self._materials: list[str] = []
+        self._groups: list[str] = []
+        self.names: list[str] = []  # the objects whose subsurface Cycles renders
+
+    def __enter__(self) -> CyclesRendersThin:
+        try:
+            copies = {}
+            for name, thin in self.objects:
+                obj = bpy.data.objects.get(name)
+                if obj is None or not obj.is_editable:
+                    continue
+                for index, slot in enumerate(obj.material_slots):
+                    material = slot.material
+                    if material is None or material.name not in thin:
+                        continue
+                    if material.name not in copies:
+                        copies[material.name] = self._copy(material)
+                    own = material.name if slot.link == "OBJECT" else None
+                    self._slots.append(_Slot(name, index, slot.link, own))
+                    slot.link = "OBJECT"
+                    slot.material = copies[material.name]
+                if name not in self.names:
+                    self.names.append(name)
+        except BaseException:
+            self.restore()
+            raise
+        return self
+
+    def _copy(self, material):
+        copy = material.copy()
+        self._materials.append(copy.name)
+        copy.sss_material.mode = "OFF"
+        pending = [copy.node_tree]
+        done: dict[str, object] = {}
+        while pending:
+            tree = pending.pop()
+            for node in getattr(tree, "nodes", ()):
+                group = node.node_tree if node.bl_idname == "ShaderNodeGroup" else None
+                if group is None:
+                    continue
+                if group.name not in done:
+                    done[group.name] = group.copy()
+                    self._groups.append(done[group.name].name)
+                    pending.append(done[group.name])
+                node.node_tree = done[group.name]
+        return copy
+
+    def restore(self) -> None:
+        """Slots back, copies removed (safe to call more than once)."""
+        for saved in reversed(self._slots):
+            obj = bpy.data.objects.get(saved.obj)
+            if obj is None:
+                continue
+            slot = obj.material_slots[saved.index]
+            # While linked to the object, assigning sets the object's own material.
+            slot.material = bpy.data.materials.get(saved.material) if saved.material else None
+            slot.link = saved.link
+        self._slots = []
+        for name in self._materials:
+            material = bpy.data.materials.get(name)
+            if material is not None:
+                bpy.data.materials.remove(material)
+        self._materials = []
+        for name in self._groups:
+            group = bpy.data.node_groups.get(name)
+            if group is not None:
+                bpy.data.node_groups.remove(group)
+        self._groups = []
+
+    def __exit__(self, *exc) -> None:
+        self.restore()

@@ -1,0 +1,88 @@
+"""Parts thin for their Random Walk material: which objects, and their copies for Cycles.
+
+The render itself (the thin top darker, as Cycles' walk makes it) is tested in
+test_apply_on_render_output.py; here the copies: their subsurface survives the pass
+render's switch-off, also inside node groups, and everything is back afterwards.
+"""
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from cvsss.sss_addon.blender import materials as sss_materials  # noqa: E402
+from cvsss.sss_addon.blender.apply_on_render import thin_parts  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+
+
+def _grouped_walk(name: str):
+    """A material whose Principled BSDF (Random Walk, weight 1, radius 1 cm per channel
+    at scale 1) sits inside a node group, as asset libraries ship them."""
+    group = bpy.data.node_groups.new(name + " group", "ShaderNodeTree")
+    group.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
+    out = group.nodes.new("NodeGroupOutput")
+    bsdf = group.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.subsurface_method = "RANDOM_WALK"
+    bsdf.inputs["Subsurface Weight"].default_value = 1.0
+    bsdf.inputs["Subsurface Radius"].default_value = (0.01, 0.01, 0.01)
+    bsdf.inputs["Subsurface Scale"].default_value = 1.0
+    group.links.new(bsdf.outputs["BSDF"], out.inputs["BSDF"])
+    material = bpy.data.materials.new(name)
+    tree = material.node_tree
+    tree.nodes.remove(tree.nodes["Principled BSDF"])
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    tree.links.new(node.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
+    return material, group
+
+
+def _slab(scene, name: str, material, thickness: float):
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(
+        [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, thickness)],
+        [],
+        [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)],
+    )
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
+    """A 1-mm slab of a walk with 1-cm radii is thin (under 4 mean free paths); a 1-m cube
+    of it is not. The slab's slot gets a copy that takes no part, with its own copy of the
+    node group, so switching the original's subsurface off (the pass render) leaves the
+    copy's on; afterwards the slot, the materials and the groups are as before."""
+    material, group = _grouped_walk("walk")
+    slab = _slab(fresh, "slab", material, 0.001)
+    _slab(fresh, "cube", material, 1.0)
+    bpy.context.view_layer.update()
+    assert sss_materials.participates(material)
+    assert [(obj.name, [m.name for m in mats]) for obj, mats in thin_parts.thin_objects(fresh)] == [
+        ("slab", ["walk"])
+    ]
+    before = snapshot[0](fresh)
+    names = sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())
+    with thin_parts.CyclesRendersThin(thin_parts.thin_objects(fresh)) as thin:
+        assert thin.names == ["slab"]
+        slot = slab.material_slots[0]
+        copy = slot.material
+        assert slot.link == "OBJECT" and copy != material and slab.data.materials[0] == material
+        assert copy.sss_material.mode == "OFF" and not sss_materials.participates(copy)
+        inner = copy.node_tree.nodes["Group"].node_tree
+        assert inner != group
+        with sss_materials.SSSDisabled([material]):
+            assert group.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value == 0
+            assert inner.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value == 1
+    assert snapshot[1](before, snapshot[0](fresh)) == []
+    assert (sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())) == names
+
+
+def test_no_walk_no_thin_parts(fresh):
+    """Christensen-Burley has no mean free path: nothing is thin, whatever its size."""
+    material, group = _grouped_walk("burley")
+    group.nodes["Principled BSDF"].subsurface_method = "BURLEY"
+    _slab(fresh, "slab", material, 0.001)
+    bpy.context.view_layer.update()
+    assert thin_parts.thin_objects(fresh) == []
