@@ -203,7 +203,7 @@ THIN_WALKS = (
     (
         "CYCLES",
         "Cycles",
-        "Cycles renders the subsurface of objects thinner than 4 mean free paths of their "
+        "Cycles renders the subsurface of objects thinner than 5 mean free paths of their "
         "Random Walk material, as in a plain render (its walk loses light through the far "
         "side, which screen space cannot see); Cycles passes only",
     ),

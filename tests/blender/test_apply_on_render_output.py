@@ -291,9 +291,9 @@ def _random_walk(scene) -> None:
 def test_the_panel_notes_parts_thin_for_random_walk(scene):
     """The flash demo's marble table top is 2 cm thick, two mean free paths of its marble
     (Burley d = 1 cm in red, the demo's D_MAX); every other subsurface object is over
-    10 cm. Only with Random Walk, and only while under 4 mean free paths, is it noted;
+    10 cm. Only with Random Walk, and only while under 5 mean free paths, is it noted;
     the note says who renders it."""
-    head = "'flash Marble Top' is thin for Random Walk (under 4 mean free paths): "
+    head = "'flash Marble Top' is thin for Random Walk (under 5 mean free paths): "
     cycles = head + "Cycles renders its subsurface"
     post = (
         head + "Cycles loses light through the far side, the post keeps it (brighter than Cycles)"
@@ -308,7 +308,7 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene):
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == [post]
     scene.render.engine = "CYCLES"
     top = scene.objects["flash Marble Top"]
-    top.scale.z *= 2.5  # 5 cm: five mean free paths
+    top.scale.z *= 3.5  # 7 cm: seven mean free paths
     bpy.context.view_layer.update()
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == []
 

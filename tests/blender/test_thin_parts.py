@@ -50,7 +50,7 @@ def _slab(scene, name: str, material, thickness: float):
 
 
 def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
-    """A 1-mm slab of a walk with 1-cm radii is thin (under 4 mean free paths); a 1-m cube
+    """A 1-mm slab of a walk with 1-cm radii is thin (under 5 mean free paths); a 1-m cube
     of it is not. The slab's slot gets a copy that takes no part, with its own copy of the
     node group, so switching the original's subsurface off (the pass render) leaves the
     copy's on; afterwards the slot, the materials and the groups are as before."""

@@ -64,7 +64,7 @@ SCALE = 0.05  # Subsurface Scale
 #: Radius and Scale, so that the red channel's mean free path is 1 cm.
 MARBLE = {"albedo": [0.7753, 0.741, 0.7076], "radius": [1.0, 0.8038, 0.672], "scale": 0.12566}
 #: Slab thicknesses of the thickness cases, in the marble's red mean free paths (and a deep one).
-THICKNESSES = (1, 2, 4, 8, 100)
+THICKNESSES = (1, 2, 4, 5, 6, 8, 100)
 
 
 def radius_for(albedo, method: str, target_px: float, subsurface_ior: float = 1.4) -> list:
