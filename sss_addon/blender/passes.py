@@ -41,6 +41,7 @@ from .denoise import denoise_pass_file
 from .eevee_labels import AOV_NAME, COVER_AOV, OBJECT_AOV, aov_to_material_index
 from .errors import RenderError
 from .internal_renders import internal_render
+from .thin_parts import CyclesRendersThin
 
 # -- generic RNA snapshots -------------------------------------------------------------
 _SCALAR_TYPES = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
@@ -317,6 +318,10 @@ class PassSetup(SceneSetup):
     guides : bool
         Also write them, to stay in the file: the guides of the finished
         frame's denoise (:mod:`.denoise_frame`).
+    thin : list of (bpy.types.Object, list of bpy.types.Material)
+        Objects whose subsurface in those materials Cycles renders
+        (:class:`.thin_parts.CyclesRendersThin`, entered before anything else
+        changes, so the copies keep the materials' subsurface; restored last).
     """
 
     def __init__(
@@ -328,6 +333,7 @@ class PassSetup(SceneSetup):
         normal: bool = False,
         denoise: bool = False,
         guides: bool = False,
+        thin=(),
     ) -> None:
         super().__init__(scene, view_layer)
         self.materials = list(materials)
@@ -343,9 +349,11 @@ class PassSetup(SceneSetup):
         self._cover_aov = None
         self._weight_aov = None
         self._aov_nodes: list[tuple[object, str]] = []
+        self._thin = CyclesRendersThin(thin)
 
     def __enter__(self) -> PassSetup:
         try:
+            self._thin.__enter__()
             self._pass_index = _pass_indices(bpy.data.materials)
             self._object_index = _pass_indices(bpy.data.objects)
             super().__enter__()
@@ -472,7 +480,10 @@ class PassSetup(SceneSetup):
         self._pass_index = {}
         _put_back_pass_indices(bpy.data.objects, self._object_index)
         self._object_index = {}
-        super().restore()
+        try:
+            super().restore()
+        finally:
+            self._thin.restore()
 
 
 def _pass_indices(datablocks) -> dict[str, int]:

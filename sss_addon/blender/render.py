@@ -59,6 +59,7 @@ from .. import precompile
 from ..progress import format_clock, printer
 from . import ground_truth as gt
 from . import materials as sss_materials
+from . import thin_parts
 from .denoise_frame import (
     EEVEE_DENOISE,
     DenoiseSettings,
@@ -141,6 +142,11 @@ class Job:
     #: False: ``wm.open_mainfile(use_scripts=…)``, Blender's -y / -Y), or None: as
     #: Blender is set; passed on to the processes that render farm chunks.
     autoexec: bool | None = None
+    #: Objects thin for their Random Walk material whose subsurface Cycles renders in the
+    #: pass render, with those materials (:mod:`.thin_parts`); empty: the post renders all.
+    thin: list = field(default_factory=list)
+    #: Who renders their subsurface, resolved ("CYCLES" or "POST"; farm chunks get it).
+    thin_walks: str = "CYCLES"
 
     @property
     def passes_dir(self) -> Path:
@@ -473,6 +479,7 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                     job.normal,
                     job.denoise_passes,
                     guides,
+                    job.thin,
                 ):
                     render_frame(
                         scene,
@@ -725,6 +732,7 @@ def job_from_scene(
     ground_truth_method: str | None = None,
     warmup_frames: int = 0,
     denoise: bool | None = None,
+    thin_walks: str | None = None,
 ) -> Job:
     """A :class:`Job` from ``scene.sss_settings``; each argument given overrides it.
 
@@ -736,6 +744,10 @@ def job_from_scene(
     ``denoise`` (None: as the scene's render does, :func:`.denoise_frame.scene_denoise`,
     unless the passes are denoised instead) denoises the finished frames with the
     scene's Cycles denoiser settings.
+
+    ``thin_walks`` ("CYCLES", "POST"; None: ``thin_walks`` of the settings) says who
+    renders the subsurface of parts thin for their Random Walk material on Cycles
+    passes (:mod:`.thin_parts`); the job's ``thin`` lists them when Cycles does.
     """
     settings = scene.sss_settings
     names = list(methods) if methods else [settings.method]
@@ -755,7 +767,7 @@ def job_from_scene(
     finished = None
     if not (denoise_passes and denoise is None):  # denoised passes instead, as asked
         finished = _finished_denoise(scene, render_view_layer(scene, context), pass_engine, denoise)
-    return make_job(
+    job = make_job(
         scene,
         frames if frames is not None else frame_range(scene),
         out if out is not None else resolve_output_dir(settings),
@@ -778,6 +790,10 @@ def job_from_scene(
         warmup_frames=warmup_frames,
         denoise=finished,
     )
+    job.thin_walks = _given(thin_walks, settings.thin_walks)
+    if thin_parts.cycles_renders(job.thin_walks, pass_engine):
+        job.thin = thin_parts.thin_objects(scene)
+    return job
 
 
 def _finished_denoise(scene, view_layer, engine: str, asked: bool | None):

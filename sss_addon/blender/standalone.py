@@ -19,6 +19,7 @@ import bpy
 from ... import register, unregister
 from ...core.method import MethodOptions
 from ...core.params import SSSParams
+from . import thin_parts
 from .autoexec import warning as skipped_python
 from .console import StdoutFilter
 from .errors import RenderError
@@ -63,6 +64,7 @@ def render_sequence(
     processors=None,
     on_job: Callable[[Job], None] | None = None,
     autoexec: bool | None = None,
+    thin_walks: str | None = None,
 ) -> list[dict]:
     """Render passes and post-process a frame range; returns the metric rows.
 
@@ -130,6 +132,10 @@ def render_sequence(
         default, or the -y/-Y it was started with). Blender keeps the choice for
         the files it opens later in the process. When Blender skipped some, one
         ``warning:`` line on stderr names them before the render.
+    thin_walks : {"CYCLES", "POST"}, optional
+        Who renders the subsurface of parts thin for their Random Walk material on
+        Cycles passes (:mod:`.thin_parts`); default: the scene's *Thin Random Walk
+        Parts*. One ``note:`` line on stderr names such parts.
 
     Returns
     -------
@@ -188,7 +194,10 @@ def render_sequence(
             ground_truth_every=ground_truth_every,
             ground_truth_method=ground_truth_method,
             warmup_frames=warmup_frames,
+            thin_walks=thin_walks,
         )
+        for text in thin_parts.note(scene, job.engine, thin_walks):
+            print("note: " + text, file=sys.stderr, flush=True)
         job.range_start = range_start
         job.render_passes = render_passes
         job.processed_here = processors is None

@@ -313,6 +313,7 @@ def _sequence_options(args: argparse.Namespace, frames, methods, params, option_
         "options": option_overrides,
         "denoise_passes": args.denoise_passes,
         "denoise": args.denoise,
+        "thin_walks": None if args.thin_walks is None else args.thin_walks.upper(),
         "ground_truth": args.ground_truth,
         "ground_truth_samples": args.ground_truth_spp,
         "ground_truth_every": args.ground_truth_every,

@@ -316,6 +316,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--denoise (default: the scene's cvsss setting)",
     )
     rnd.add_argument(
+        "--thin-walks",
+        choices=("cycles", "post"),
+        default=None,
+        help="who renders the subsurface of objects thinner than 5 mean free paths of their "
+        "Random Walk material on Cycles passes: cycles (as a plain render; its walk loses "
+        "light through their far side, which the post cannot see) or post (brighter than "
+        "Cycles); default: the scene's Thin Random Walk Parts",
+    )
+    rnd.add_argument(
         "--warmup-frames",
         type=int,
         default=0,

@@ -69,6 +69,8 @@ def chunk_argv(blend: Path, out: Path, first: int, last: int, job, range_start: 
         job.engine,
         "--denoise-passes" if job.denoise_passes else "--no-denoise-passes",
         "--denoise" if job.denoise is not None else "--no-denoise",
+        "--thin-walks",
+        job.thin_walks.lower(),
         "--quiet",
     ]
     if job.ground_truth:

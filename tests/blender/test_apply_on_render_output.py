@@ -319,7 +319,8 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
     G / B) of the top without subsurface (frame 21, docs/explanation/accuracy.md §2.3),
     while the post keeps 1.00–1.02. Left to Cycles (the default), the delivered top is
     that much darker than the post makes it, most in red, and the user's scene, slots and
-    materials are back afterwards."""
+    materials are back afterwards. ``cvsss render`` of the same frame composites the
+    same frame (the setting is the scene's, for every way of rendering)."""
     _random_walk(scene)
     scene.frame_set(21)
     scene.cycles.samples = 16
@@ -329,7 +330,7 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
     top = scene.objects["flash Marble Top"]
     top.pass_index = 7
     _exr(scene, tmp_path / "x", multilayer=True)
-    means = {}
+    means, frames = {}, {}
     for who in ("CYCLES", "POST"):
         scene.sss_settings.thin_walks = who
         scene.render.filepath = str(tmp_path / who)
@@ -341,10 +342,18 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
         got = _read(tmp_path / f"{who}.exr")  # a still: the path as given, and .exr
         mask = got[layer.name + ".Object Index.X"] == 7
         assert mask.sum() > 200  # the top fills much of the frame
-        means[who] = _stack(got, layer.name + ".Combined.", "RGB")[mask].mean(0)
+        frames[who] = _stack(got, layer.name + ".Combined.", "RGB")
+        means[who] = frames[who][mask].mean(0)
     ratio = means["CYCLES"] / means["POST"]
     assert 0.75 < ratio[0] < 0.93, ratio
     assert ratio[0] < ratio[2] < 1.0, ratio  # the walk loses the most in red
+    scene.sss_settings.thin_walks = "CYCLES"
+    method = scene.sss_settings.method
+    standalone.render_sequence(
+        scene, (21, 21), tmp_path / "cli", [method], engine="CYCLES", reference=False, log=None
+    )
+    composite = read_result(tmp_path / "cli" / method / "0021.exr")["Composite"]
+    np.testing.assert_allclose(frames["CYCLES"], composite, rtol=1e-6, atol=1e-7)
 
 
 def test_ui_finishes_through_the_users_compositor(scene, tmp_path, snapshot, monkeypatch):

@@ -75,7 +75,8 @@ def test_ground_truth_of_a_chunk_falls_on_the_whole_range(addon):
 
 
 def test_chunks_run_the_files_python_as_the_whole_render_does(addon):
-    """--enable-autoexec / --disable-autoexec reach the chunks' Blender processes."""
+    """--enable-autoexec / --disable-autoexec, and who renders thin Random Walk parts,
+    reach the chunks' Blender processes."""
     from cvsss.core.params import SSSParams
     from cvsss.sss_addon.blender.render import Job
     from cvsss.sss_addon.farm.passes import chunk_argv
@@ -86,6 +87,10 @@ def test_chunks_run_the_files_python_as_the_whole_render_does(addon):
         job.autoexec = choice
         argv = chunk_argv(Path("scene.blend"), Path("out"), 1, 2, job, 1)
         assert argv[3] == "render" and parser.parse_args(argv[3:]).autoexec is choice
+    for who in ("CYCLES", "POST"):
+        job.thin_walks = who
+        argv = chunk_argv(Path("scene.blend"), Path("out"), 1, 2, job, 1)
+        assert parser.parse_args(argv[3:]).thin_walks == who.lower()
 
 
 def test_chunks_are_consecutive_runs():

@@ -10,7 +10,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from cvsss.sss_addon.blender import materials as sss_materials  # noqa: E402
-from cvsss.sss_addon.blender.apply_on_render import thin_parts  # noqa: E402
+from cvsss.sss_addon.blender import thin_parts  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -77,6 +77,27 @@ def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
             assert inner.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value == 1
     assert snapshot[1](before, snapshot[0](fresh)) == []
     assert (sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())) == names
+
+
+def test_the_job_lists_thin_parts_where_cycles_renders_them(demo):
+    """``cvsss render``'s job (and Apply on Render's) on the flash demo switched to Random
+    Walk: its 2-cm top, with the scene's setting (Cycles) on Cycles passes; none when the
+    post renders them, nor on EEVEE passes (EEVEE's own subsurface is not Cycles')."""
+    from cvsss.sss_addon.blender.render import job_from_scene
+
+    for material in bpy.data.materials:
+        for node in material.node_tree.nodes if material.node_tree else ():
+            if node.bl_idname == "ShaderNodeBsdfPrincipled":
+                node.subsurface_method = "RANDOM_WALK"
+
+    def names(**kwargs) -> list[str]:
+        return [obj.name for obj, _ in job_from_scene(demo, **kwargs).thin]
+
+    assert names(engine="CYCLES") == ["flash Marble Top"]
+    assert names(engine="CYCLES", thin_walks="POST") == []
+    assert names(engine="EEVEE") == []
+    demo.sss_settings.thin_walks = "POST"
+    assert names(engine="CYCLES") == [] and names(engine="CYCLES", thin_walks="CYCLES")
 
 
 def test_no_walk_no_thin_parts(fresh):

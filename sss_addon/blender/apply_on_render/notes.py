@@ -12,9 +12,9 @@ panel draws it, and drawing may not create datablocks).
 from __future__ import annotations
 
 from .. import materials as sss_materials
+from .. import thin_parts
 from ..errors import RenderError
 from ..passes import render_view_layer
-from . import thin_parts
 from .compositor import render_layer_names
 from .scenes import PASS_ENGINES, pass_engine
 from .user_render import compositing, material_index_exact, multilayer

@@ -59,7 +59,6 @@ from .scenes import (
     pass_engine,
     scene_copy,
 )
-from .thin_parts import cycles_renders, thin_objects
 from .user_render import KeepingPassSetup, user_render
 
 
@@ -165,8 +164,6 @@ class Session:
         self.movie = bool(r.is_movie_format)
         self.overwrite, self.placeholder = bool(r.use_overwrite), bool(r.use_placeholder)
         self.notes = bypassed(scene) + model_notes(scene)
-        # Objects whose subsurface Cycles renders in the pass render (thin_parts).
-        self.thin = thin_objects(scene) if cycles_renders(scene, engine) else []
         self.setup: KeepingPassSetup | None = None
         self.output = None
         self.groups: list = []  # the output scene's copies of the compositor's node groups
@@ -256,7 +253,7 @@ class Session:
             self.job.denoise_passes,
             user=user,
             guides=self.denoise is not None,
-            thin=self.thin,
+            thin=self.job.thin,
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")

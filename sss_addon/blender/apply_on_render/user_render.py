@@ -16,7 +16,6 @@ import bpy
 import numpy as np
 
 from ..passes import PassSetup
-from .thin_parts import CyclesRendersThin
 
 #: The Render Layers node's socket of the Combined pass, and the one made of its alpha.
 _IMAGE, _ALPHA = "Image", "Alpha"
@@ -116,14 +115,10 @@ class KeepingPassSetup(PassSetup):
 
     Parameters
     ----------
-    scene, materials, view_layer, engine, normal, denoise, guides
+    scene, materials, view_layer, engine, normal, denoise, guides, thin
         As :class:`.passes.PassSetup`.
     user : UserRender or None
         Its pass switches stay on (None: only the add-on's passes).
-    thin : list of (bpy.types.Object, list of bpy.types.Material)
-        Objects whose subsurface in those materials Cycles renders
-        (:class:`.thin_parts.CyclesRendersThin`, entered before anything else
-        changes, so the copies keep the materials' subsurface).
     """
 
     def __init__(
@@ -138,25 +133,8 @@ class KeepingPassSetup(PassSetup):
         guides: bool = False,
         thin=(),
     ) -> None:
-        super().__init__(scene, materials, view_layer, engine, normal, denoise, guides)
+        super().__init__(scene, materials, view_layer, engine, normal, denoise, guides, thin)
         self.user = user
-        self.thin = CyclesRendersThin(thin)
-
-    def __enter__(self) -> KeepingPassSetup:
-        try:
-            self.thin.__enter__()
-        except BaseException:
-            self.restore()
-            raise
-        super().__enter__()
-        return self
-
-    def restore(self) -> None:
-        """Everything back, the thin parts' copies last (safe to call more than once)."""
-        try:
-            super().restore()
-        finally:
-            self.thin.restore()
 
     def _only_layer(self, wanted) -> None:
         kept = self.user.pass_flags if self.user is not None else frozenset()

@@ -7,13 +7,15 @@ docs/explanation/accuracy.md §2.3). The post sees the near side's irradiance
 only and keeps that light, so such a part comes out brighter than Cycles
 renders it, and over a large table top the error outweighs what the post adds.
 
-With *Thin Random Walk Parts* on Cycles (the default), the pass render gives
-each thin object its own copy of those materials, taking no part
-(``sss_material.mode`` OFF), so Cycles renders their subsurface as in the
-user's own render and the post leaves their pixels as rendered; the finished
-frame's denoise then treats them as the user's denoiser would.
-:class:`CyclesRendersThin` makes the copies and puts the objects' slots back
-and removes the copies afterwards, also on error.
+With *Thin Random Walk Parts* on Cycles (the default; ``cvsss render
+--thin-walks``), the pass render gives each thin object its own copy of those
+materials, taking no part (``sss_material.mode`` OFF), so Cycles renders
+their subsurface as in the user's own render and the post leaves their pixels
+as rendered; a denoised finished frame treats them as the user's denoiser
+would. :class:`CyclesRendersThin` (entered by :class:`.passes.PassSetup`) makes
+the copies, and puts the objects' slots back and removes the copies
+afterwards, also on error. Apply on Render, ``cvsss render`` and the farm's
+pass chunks all follow the setting.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 
 import bpy
 
-from .. import materials as sss_materials
+from . import materials as sss_materials
 
 #: Parts thinner than this many mean free paths of their Random Walk material are thin: a
 #: free slab loses 9 % of its red light at 5 (13 % at 4), and on a flat lit part, whose
@@ -66,14 +68,16 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     return found
 
 
-def cycles_renders(scene, engine: str) -> bool:
-    """Whether the pass render leaves thin Random Walk parts to Cycles (its setting, on
-    Cycles passes)."""
-    return engine == "CYCLES" and scene.sss_settings.thin_walks == "CYCLES"
+def cycles_renders(who: str, engine: str | None) -> bool:
+    """Whether the pass render leaves thin Random Walk parts to Cycles: ``who`` (the
+    setting, "CYCLES" or "POST") asks it and the passes are Cycles'."""
+    return engine == "CYCLES" and who == "CYCLES"
 
 
-def note(scene, engine: str | None) -> list[str]:
-    """The panel's and the log's note on thin parts (none without them)."""
+def note(scene, engine: str | None, who: str | None = None) -> list[str]:
+    """The panel's and the log's note on thin parts (none without them); ``who``
+    defaults to the scene's setting."""
+    who = who or scene.sss_settings.thin_walks
     thin = [obj.name for obj, _ in thin_objects(scene)]
     if not thin:
         return []
@@ -82,7 +86,7 @@ def note(scene, engine: str | None) -> list[str]:
         f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
         f"{THIN_MEAN_FREE_PATHS:g} mean free paths)"
     )
-    if engine is not None and cycles_renders(scene, engine):
+    if cycles_renders(who, engine):
         return [f"{head}: Cycles renders {'its' if len(thin) == 1 else 'their'} subsurface"]
     return [
         f"{head}: Cycles loses light through the far side, the post keeps it (brighter than "
