@@ -560,7 +560,8 @@ def pass_changes(passes_dir: Path, frame: int, sidecar: dict) -> list[str]:
     ``sidecar`` is what a render of the frame would write now
     (:func:`pass_sidecar`, the scene at the frame): another resolution,
     camera, material, Subsurface Weight, unit scale, view layer or engine
-    makes the existing passes stale. The ``denoised`` flag and the
+    makes the existing passes stale, and so does another set of objects whose subsurface
+    Cycles rendered. The ``denoised`` flag and the
     ``denoise`` record are :func:`frame_done`'s. Empty when they agree (or
     nothing exists).
     """
@@ -626,6 +627,7 @@ def render_frame(
     view_layer,
     denoise: bool = False,
     finished_denoise: dict | None = None,
+    cycles_objects=(),
 ) -> Path:
     """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
 
@@ -638,7 +640,8 @@ def render_frame(
     records ``"denoised": true``. ``finished_denoise`` (the scene's denoiser
     settings, :meth:`.denoise_frame.DenoiseSettings.to_dict`; the scene set up
     with ``guides``) is recorded as ``"denoise"``: the file keeps the guides,
-    and the finished frames made of it are to be denoised so.
+    and the finished frames made of it are to be denoised so. ``cycles_objects`` as
+    :func:`pass_sidecar`.
 
     Returns
     -------
@@ -646,7 +649,7 @@ def render_frame(
     """
     scene.frame_set(frame)
     path = pass_path(passes_dir, frame)
-    sidecar = pass_sidecar(scene, frame, specs, view_layer)
+    sidecar = pass_sidecar(scene, frame, specs, view_layer, cycles_objects)
     if denoise:
         sidecar["denoised"] = True
     if finished_denoise is not None:
@@ -663,9 +666,14 @@ def render_frame(
     return path
 
 
-def pass_sidecar(scene, frame: int, specs: list[MaterialSpec], view_layer) -> dict:
-    """The sidecar of ``frame``'s pass EXR: the camera now (scene at the frame) and ``specs``."""
-    return make_sidecar(
+def pass_sidecar(
+    scene, frame: int, specs: list[MaterialSpec], view_layer, cycles_objects=()
+) -> dict:
+    """The sidecar of ``frame``'s pass EXR: the camera now (scene at the frame) and ``specs``;
+    ``cycles_objects``, the names of the objects whose subsurface Cycles rendered
+    (:mod:`.thin_parts`), recorded when there are any (passes made with another choice
+    are stale, :func:`pass_changes`)."""
+    sidecar = make_sidecar(
         scene_camera(scene),
         specs,
         frame=frame,
@@ -673,6 +681,9 @@ def pass_sidecar(scene, frame: int, specs: list[MaterialSpec], view_layer) -> di
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
+    if cycles_objects:
+        sidecar["thin_parts"] = sorted(cycles_objects)
+    return sidecar
 
 
 def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool) -> None:

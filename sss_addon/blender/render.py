@@ -149,6 +149,11 @@ class Job:
     thin_walks: str = "CYCLES"
 
     @property
+    def thin_names(self) -> list[str]:
+        """The names of :attr:`thin`'s objects."""
+        return [obj.name for obj, _ in self.thin]
+
+    @property
     def passes_dir(self) -> Path:
         return self.out / "passes"
 
@@ -409,7 +414,7 @@ def check_passes(job: Job, frame: int) -> None:
     try:
         scene.frame_set(frame)
         specs = sss_materials.material_specs(job.materials, scene)
-        now = pass_sidecar(scene, frame, specs, job.view_layer)
+        now = pass_sidecar(scene, frame, specs, job.view_layer, job.thin_names)
         # The pass render switches the engine to the job's (EEVEE passes of a Cycles scene).
         now["engine"] = engine_identifier(scene, job.engine)
     finally:
@@ -489,6 +494,7 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                         job.view_layer,
                         job.denoise_passes,
                         job.denoise.to_dict() if guides else None,
+                        job.thin_names,
                     )
             step = Step(index, total, frame, path, rendered, 0.0)
             if wanted and job.ground_truth_due(index - 1):

@@ -36,6 +36,13 @@ def _grouped_walk(name: str):
     return material, group
 
 
+def _walk_everywhere() -> None:
+    for material in bpy.data.materials:
+        for node in material.node_tree.nodes if material.node_tree else ():
+            if node.bl_idname == "ShaderNodeBsdfPrincipled":
+                node.subsurface_method = "RANDOM_WALK"
+
+
 def _slab(scene, name: str, material, thickness: float):
     mesh = bpy.data.meshes.new(name)
     mesh.from_pydata(
@@ -85,10 +92,7 @@ def test_the_job_lists_thin_parts_where_cycles_renders_them(demo):
     post renders them, nor on EEVEE passes (EEVEE's own subsurface is not Cycles')."""
     from cvsss.sss_addon.blender.render import job_from_scene
 
-    for material in bpy.data.materials:
-        for node in material.node_tree.nodes if material.node_tree else ():
-            if node.bl_idname == "ShaderNodeBsdfPrincipled":
-                node.subsurface_method = "RANDOM_WALK"
+    _walk_everywhere()
 
     def names(**kwargs) -> list[str]:
         return [obj.name for obj, _ in job_from_scene(demo, **kwargs).thin]
@@ -98,6 +102,25 @@ def test_the_job_lists_thin_parts_where_cycles_renders_them(demo):
     assert names(engine="EEVEE") == []
     demo.sss_settings.thin_walks = "POST"
     assert names(engine="CYCLES") == [] and names(engine="CYCLES", thin_walks="CYCLES")
+
+
+def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
+    """The pass sidecar names the parts Cycles rendered; reusing those passes when the
+    post is to render them instead is refused, as for another camera or material."""
+    import json
+
+    from cvsss.sss_addon.blender import standalone
+    from cvsss.sss_addon.blender.errors import RenderError
+
+    _walk_everywhere()
+    kwargs = {"engine": "CYCLES", "reference": False, "log": None, "passes_only": True}
+    standalone.render_sequence(demo, (1, 1), tmp_path / "out", ["none"], **kwargs)
+    sidecar = json.loads((tmp_path / "out" / "passes" / "0001.json").read_text())
+    assert sidecar["thin_parts"] == ["flash Marble Top"]
+    with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
+        standalone.render_sequence(
+            demo, (1, 1), tmp_path / "out", ["none"], thin_walks="POST", **kwargs
+        )
 
 
 def test_no_walk_no_thin_parts(fresh):

@@ -351,7 +351,13 @@ class Session:
                     specs = sss_materials.material_specs(self.job.materials, copy)
                     with self._internal(), bpy.context.temp_override(scene=copy):
                         path = render_frame(
-                            copy, frame, self.passes, specs, layer, self.job.denoise_passes
+                            copy,
+                            frame,
+                            self.passes,
+                            specs,
+                            layer,
+                            self.job.denoise_passes,
+                            cycles_objects=self.job.thin_names,
                         )
             finally:
                 bpy.data.scenes.remove(copy)
@@ -390,7 +396,9 @@ class Session:
         if not self.deferred and camera_animated(scene, self.job.materials):
             scene.frame_set(frame)
         specs = sss_materials.material_specs(self.job.materials, scene)
-        self.sidecars[frame] = pass_sidecar(scene, frame, specs, self.job.view_layer)
+        self.sidecars[frame] = pass_sidecar(
+            scene, frame, specs, self.job.view_layer, self.job.thin_names
+        )
         if self.output is not None and not self.movie:
             path = Path(self.output.render.frame_path(frame=frame))
             if not self.overwrite and path.exists():
