@@ -106,6 +106,7 @@ def test_the_table_of_a_tiny_scene(demo, tmp_path, snapshot):
         "warmup_frames": 0,
         "denoise_passes": False,
         "denoise_subsurface": True,
+        "thin_walks": "CYCLES",
     }
     table = (out / "users_frame.md").read_text()
     assert "| Cycles 4 spp + denoiser, Christensen-Burley (the materials' own) | plain |" in table
