@@ -1,11 +1,11 @@
 """Parts thin for their Random Walk material: found, and by default left to Cycles.
 
 Cycles' random walk loses light through the far side of a part only a few mean
-free paths thick (a free slab of the demo's marble returns 0.67 of a deep
-slab's red light at 2 mean free paths, 0.87 at 4, 0.91 at 5, 0.94 at 6, 0.97 at 8;
+free paths thick, how much depending on what lies beyond (measured on slabs in
 docs/explanation/accuracy.md §2.3). The post sees the near side's irradiance
 only and keeps that light, so such a part comes out brighter than Cycles
-renders it, and over a large table top the error outweighs what the post adds.
+renders it, and over a large flat part, where the blur changes little, that
+error outweighs what the post adds.
 
 With *Thin Random Walk Parts* on Cycles (the default; ``cvsss render
 --thin-walks``), the pass render gives each thin object its own copy of those
@@ -27,11 +27,10 @@ import bpy
 
 from . import materials as sss_materials
 
-#: Parts thinner than this many mean free paths of their Random Walk material are thin: a
-#: free slab loses 9 % of its red light at 5 (13 % at 4), and on a flat lit part, whose
-#: blur changes little, that loss is most of the post's error. Not more: the demo's wax
-#: candles, 5.6–6.4 across, came out closer to Cycles' ground truth from the post
-#: (docs/explanation/accuracy.md §4.1).
+#: Parts thinner than this many mean free paths of their Random Walk material are thin:
+#: below it a free slab still loses a tenth of its light, which the post would keep; above
+#: it round parts (the demo's candles) came out closer to Cycles from the post
+#: (docs/explanation/accuracy.md §2.3).
 THIN_MEAN_FREE_PATHS = 5.0
 
 
@@ -113,6 +112,11 @@ class CyclesRendersThin(contextlib.AbstractContextManager):
     Each slot is linked to the object with the copy, the copy's node groups
     copied too (the pass render switches subsurface off inside the originals'
     groups). :meth:`restore` puts links and materials back and removes the copies.
+    Names, not datablocks, are kept between the two: a save during a UI render
+    restores and enters again (:meth:`.apply_on_render.session.Session.suspend`).
+    In the UI, Apply on Render enters it on Blender's render thread, where it
+    switches every other setting of the pass render, and restores it on the main
+    thread when it finishes the frames.
     """
 
     def __init__(self, objects) -> None:
