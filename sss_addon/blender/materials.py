@@ -286,7 +286,7 @@ def subsurface_weight(material) -> tuple[float, bool]:
     socket = None if node is None else node.inputs.get(WEIGHT)
     if socket is None:
         return 1.0, False
-    saved = _DISABLED.get(node.as_pointer())
+    saved = disabled(node)
     if saved is not None:  # forced to 0 for a pass render: the user's value counts
         return (1.0, True) if saved.links else (min(max(saved.value, 0.0), 1.0), False)
     if live_links(socket):
@@ -389,6 +389,13 @@ class _SavedSocket:
     value: float
     links: list = field(default_factory=list)
     muted: list = field(default_factory=list)  # (fcurve, mute flag)
+    wired: bool = False  # its weight fed again at thin points (thin_parts.thin_point_nodes)
+
+
+def disabled(node) -> _SavedSocket | None:
+    """What :class:`SSSDisabled` saved of ``node`` (a Principled BSDF) while it holds its
+    weight at 0, or None."""
+    return _DISABLED.get(node.as_pointer())
 
 
 class SSSDisabled(contextlib.AbstractContextManager):

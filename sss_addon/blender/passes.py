@@ -41,7 +41,12 @@ from .denoise import denoise_pass_file
 from .eevee_labels import AOV_NAME, COVER_AOV, OBJECT_AOV, aov_to_material_index
 from .errors import RenderError
 from .internal_renders import internal_render
-from .thin_parts import CyclesRendersThin
+from .thin_parts import (
+    THIN_POINT_AOV,
+    CyclesRendersThin,
+    leave_thin_pixels,
+    thin_point_nodes,
+)
 
 # -- generic RNA snapshots -------------------------------------------------------------
 _SCALAR_TYPES = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
@@ -322,6 +327,10 @@ class PassSetup(SceneSetup):
         Objects whose subsurface in those materials Cycles renders
         (:class:`.thin_parts.CyclesRendersThin`, entered before anything else
         changes, so the copies keep the materials' subsurface; restored last).
+    thin_points : bool
+        Cycles also renders the subsurface of the Random Walk materials' thin
+        points (:func:`.thin_parts.thin_point_nodes`), and their pixels take no
+        part (:func:`.thin_parts.leave_thin_pixels`, after the render).
     """
 
     def __init__(
@@ -334,6 +343,7 @@ class PassSetup(SceneSetup):
         denoise: bool = False,
         guides: bool = False,
         thin=(),
+        thin_points: bool = False,
     ) -> None:
         super().__init__(scene, view_layer)
         self.materials = list(materials)
@@ -348,6 +358,8 @@ class PassSetup(SceneSetup):
         self._object_aov = None
         self._cover_aov = None
         self._weight_aov = None
+        self._thin_aov = None
+        self.thin_points = thin_points
         self._aov_nodes: list[tuple[object, str]] = []
         self._thin = CyclesRendersThin(thin)
 
@@ -358,6 +370,8 @@ class PassSetup(SceneSetup):
             self._object_index = _pass_indices(bpy.data.objects)
             super().__enter__()
             self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
+            if self.thin_points and self.engine == "CYCLES":
+                self._add_thin_points()
         except BaseException:
             self.restore()
             raise
@@ -417,6 +431,23 @@ class PassSetup(SceneSetup):
             node.aov_name = WEIGHT_AOV
             tree.links.new(from_socket, node.inputs["Value"])
 
+    def _add_thin_points(self) -> None:
+        """The value AOV of thin points, and the nodes that keep their subsurface on."""
+        layer = self.view_layer
+        if not any(aov.name == THIN_POINT_AOV for aov in layer.aovs):
+            aov = layer.aovs.add()
+            aov.name = THIN_POINT_AOV
+            aov.type = "VALUE"
+            self._thin_aov = aov
+
+        def new(tree, kind: str):
+            node = tree.nodes.new(kind)
+            self._aov_nodes.append((tree, node.name))
+            return node
+
+        for material in self.materials:
+            thin_point_nodes(material, new)
+
     def _add_material_aov(self) -> None:
         """EEVEE: write each material's slot to the value AOV ``cvsss_material``, its
         object's Pass Index to ``cvsss_object`` and (1, slot², index²) to the colour
@@ -468,7 +499,7 @@ class PassSetup(SceneSetup):
             if node is not None:
                 tree.nodes.remove(node)
         self._aov_nodes = []
-        for name in ("_aov", "_object_aov", "_cover_aov", "_weight_aov"):
+        for name in ("_aov", "_object_aov", "_cover_aov", "_weight_aov", "_thin_aov"):
             aov = getattr(self, name)
             if aov is not None:
                 self.view_layer.aovs.remove(aov)
@@ -627,7 +658,7 @@ def render_frame(
     view_layer,
     denoise: bool = False,
     finished_denoise: dict | None = None,
-    cycles_objects=(),
+    thin: dict | None = None,
 ) -> Path:
     """Render the passes of ``frame`` (scene already set up) to ``####.exr`` + sidecar.
 
@@ -640,7 +671,7 @@ def render_frame(
     records ``"denoised": true``. ``finished_denoise`` (the scene's denoiser
     settings, :meth:`.denoise_frame.DenoiseSettings.to_dict`; the scene set up
     with ``guides``) is recorded as ``"denoise"``: the file keeps the guides,
-    and the finished frames made of it are to be denoised so. ``cycles_objects`` as
+    and the finished frames made of it are to be denoised so. ``thin`` as
     :func:`pass_sidecar`.
 
     Returns
@@ -649,7 +680,7 @@ def render_frame(
     """
     scene.frame_set(frame)
     path = pass_path(passes_dir, frame)
-    sidecar = pass_sidecar(scene, frame, specs, view_layer, cycles_objects)
+    sidecar = pass_sidecar(scene, frame, specs, view_layer, thin)
     if denoise:
         sidecar["denoised"] = True
     if finished_denoise is not None:
@@ -667,12 +698,11 @@ def render_frame(
 
 
 def pass_sidecar(
-    scene, frame: int, specs: list[MaterialSpec], view_layer, cycles_objects=()
+    scene, frame: int, specs: list[MaterialSpec], view_layer, thin: dict | None = None
 ) -> dict:
     """The sidecar of ``frame``'s pass EXR: the camera now (scene at the frame) and ``specs``;
-    ``cycles_objects``, the names of the objects whose subsurface Cycles rendered
-    (:mod:`.thin_parts`), recorded when there are any (passes made with another choice
-    are stale, :func:`pass_changes`)."""
+    ``thin``, what of the thin parts Cycles rendered (:func:`.thin_parts.record`), when it
+    renders any (passes made with another choice are stale, :func:`pass_changes`)."""
     sidecar = make_sidecar(
         scene_camera(scene),
         specs,
@@ -681,15 +711,18 @@ def pass_sidecar(
         engine=scene.render.engine,
         scene_unit_scale=float(scene.unit_settings.scale_length) or 1.0,
     )
-    if cycles_objects:
-        sidecar["thin_parts"] = sorted(cycles_objects)
+    if thin:
+        sidecar["thin_parts"] = thin
     return sidecar
 
 
 def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool) -> None:
     """What follows Blender's write of a pass EXR: EEVEE's AOV becomes the Material
-    Index pass, and with ``denoise`` the passes the post reads are denoised."""
+    Index pass, Cycles' pixels of thin points take no part, and with ``denoise`` the
+    passes the post reads are denoised."""
     if scene.render.engine != "CYCLES":
         aov_to_material_index(path, view_layer.name, sidecar["camera"]["clip_end"])
+    elif any(aov.name == THIN_POINT_AOV for aov in view_layer.aovs):
+        leave_thin_pixels(path, view_layer.name)
     if denoise:
         denoise_pass_file(path, view_layer.name, scene.cycles.samples)

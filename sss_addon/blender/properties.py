@@ -204,8 +204,9 @@ THIN_WALKS = (
         "CYCLES",
         "Cycles",
         "Cycles renders the subsurface of objects thinner than 5 mean free paths of their "
-        "Random Walk material, as in a plain render (its walk loses light through the far "
-        "side, which screen space cannot see); Cycles passes only",
+        "Random Walk material, and of points within 5 mean free paths of their own far side "
+        "(ears, fins, edges), as in a plain render: its walk loses or gains light through "
+        "the far side, which screen space cannot see. Cycles passes only",
     ),
     (
         "POST",

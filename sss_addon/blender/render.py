@@ -147,11 +147,15 @@ class Job:
     thin: list = field(default_factory=list)
     #: Who renders their subsurface, resolved ("CYCLES" or "POST"; farm chunks get it).
     thin_walks: str = "CYCLES"
+    #: Cycles also renders the subsurface of the Random Walk materials' thin points.
+    thin_points: bool = False
 
     @property
-    def thin_names(self) -> list[str]:
-        """The names of :attr:`thin`'s objects."""
-        return [obj.name for obj, _ in self.thin]
+    def thin_record(self) -> dict | None:
+        """What the pass sidecar records of the thin parts Cycles renders (None: none)."""
+        if not (self.thin or self.thin_points):
+            return None
+        return thin_parts.record([obj.name for obj, _ in self.thin], self.thin_points)
 
     @property
     def passes_dir(self) -> Path:
@@ -414,7 +418,7 @@ def check_passes(job: Job, frame: int) -> None:
     try:
         scene.frame_set(frame)
         specs = sss_materials.material_specs(job.materials, scene)
-        now = pass_sidecar(scene, frame, specs, job.view_layer, job.thin_names)
+        now = pass_sidecar(scene, frame, specs, job.view_layer, job.thin_record)
         # The pass render switches the engine to the job's (EEVEE passes of a Cycles scene).
         now["engine"] = engine_identifier(scene, job.engine)
     finally:
@@ -485,6 +489,7 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                     job.denoise_passes,
                     guides,
                     job.thin,
+                    job.thin_points,
                 ):
                     render_frame(
                         scene,
@@ -494,7 +499,7 @@ def iter_passes(job: Job, needed: Callable[[int], bool] | None = None) -> Iterat
                         job.view_layer,
                         job.denoise_passes,
                         job.denoise.to_dict() if guides else None,
-                        job.thin_names,
+                        job.thin_record,
                     )
             step = Step(index, total, frame, path, rendered, 0.0)
             if wanted and job.ground_truth_due(index - 1):
@@ -799,6 +804,7 @@ def job_from_scene(
     job.thin_walks = _given(thin_walks, settings.thin_walks)
     if thin_parts.cycles_renders(job.thin_walks, pass_engine):
         job.thin = thin_parts.thin_objects(scene)
+        job.thin_points = thin_parts.has_walks(job.materials)
     return job
 
 

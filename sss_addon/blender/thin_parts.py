@@ -14,18 +14,28 @@ their subsurface as in the user's own render and the post leaves their pixels
 as rendered; a denoised finished frame treats them as the user's denoiser
 would. :class:`CyclesRendersThin` (entered by :class:`.passes.PassSetup`) makes
 the copies, and puts the objects' slots back and removes the copies
-afterwards, also on error. Apply on Render, ``cvsss render`` and the farm's
+afterwards, also on error.
+
+Thin features of thick objects (an ear, a fin, the rim along an edge) are found
+per shading point instead: :func:`thin_point_nodes` gives the material's weight
+back where an Ambient Occlusion node looking inside meets the part's own surface
+within the same bound, and :func:`leave_thin_pixels` takes the pixels made mostly
+of such points out of the post. Apply on Render, ``cvsss render`` and the farm's
 pass chunks all follow the setting.
 """
 
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import bpy
+import numpy as np
 
 from . import materials as sss_materials
+from .exr_rewrite import rewrite_exr
 
 #: Parts thinner than this many mean free paths of their Random Walk material are thin:
 #: below it a free slab still loses a tenth of its light, which the post would keep; above
@@ -67,6 +77,33 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     return found
 
 
+#: Value AOV of the points whose subsurface Cycles renders (1) in a pass render.
+THIN_POINT_AOV = "cvsss_thin"
+#: Rays of the Ambient Occlusion node that tells a thin point: few, since a pixel
+#: averages many shading points (its samples), and each costs a ray.
+THIN_POINT_RAYS = 4
+#: A point is thin when fewer than this share of those rays leave the part unhit within
+#: THIN_MEAN_FREE_PATHS mean free paths; a pixel is left to Cycles when at least this
+#: share of its samples were thin points.
+THIN_POINT_SHARE = 0.5
+
+
+def has_walks(materials) -> bool:
+    """Whether any of ``materials`` is modelled as a random walk (:func:`thin_point_nodes`
+    applies to them)."""
+    return any(sss_materials.walk_mean_free_path(m) for m in materials)
+
+
+def record(objects: list[str], points: bool) -> dict:
+    """The pass sidecar's ``thin_parts``: the objects Cycles rendered, and whether it
+    rendered thin points too (with the rule's bound)."""
+    return {
+        "objects": sorted(objects),
+        "points": bool(points),
+        "mean_free_paths": THIN_MEAN_FREE_PATHS,
+    }
+
+
 def cycles_renders(who: str, engine: str | None) -> bool:
     """Whether the pass render leaves thin Random Walk parts to Cycles: ``who`` (the
     setting, "CYCLES" or "POST") asks it and the passes are Cycles'."""
@@ -91,6 +128,71 @@ def note(scene, engine: str | None, who: str | None = None) -> list[str]:
         f"{head}: Cycles loses light through the far side, the post keeps it (brighter than "
         "Cycles)"
     ]
+
+
+def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
+    """Wire ``material``'s Principled BSDFs (held at Subsurface Weight 0 by
+    :class:`.materials.SSSDisabled`) so Cycles keeps their subsurface at thin points.
+
+    A point is thin when most inward rays of an Ambient Occlusion node (Inside,
+    Only Local, :data:`THIN_POINT_RAYS` rays) meet the part's own surface within
+    :data:`THIN_MEAN_FREE_PATHS` mean free paths: an ear, a fin, the rim of an
+    edge, where Cycles' walk reaches surface the camera may not see. There the
+    weight is the user's again (its value or its link); elsewhere it stays 0. The
+    value AOV :data:`THIN_POINT_AOV` is 1 at thin points (:func:`leave_thin_pixels`).
+    ``new(tree, node type)`` makes a node the pass render removes afterwards. Random
+    Walk materials only; a Principled BSDF shared through a node group is wired once.
+    """
+    ell = sss_materials.walk_mean_free_path(material)
+    if ell is None:
+        return
+    for tree, node in sss_materials.principled_nodes(material.node_tree):
+        saved = sss_materials.disabled(node)
+        if saved is None or saved.wired:
+            continue
+        saved.wired = True
+        ao = new(tree, "ShaderNodeAmbientOcclusion")
+        ao.inside = True
+        ao.only_local = True
+        ao.samples = THIN_POINT_RAYS
+        ao.inputs["Distance"].default_value = THIN_MEAN_FREE_PATHS * ell
+        thin = new(tree, "ShaderNodeMath")
+        thin.operation = "LESS_THAN"
+        tree.links.new(ao.outputs["AO"], thin.inputs[0])
+        thin.inputs[1].default_value = THIN_POINT_SHARE
+        weight = new(tree, "ShaderNodeMath")
+        weight.operation = "MULTIPLY"
+        tree.links.new(thin.outputs["Value"], weight.inputs[0])
+        if saved.links:
+            tree.links.new(saved.links[0], weight.inputs[1])
+        else:
+            weight.inputs[1].default_value = saved.value
+        tree.links.new(weight.outputs["Value"], node.inputs[sss_materials.WEIGHT])
+        out = new(tree, "ShaderNodeOutputAOV")
+        out.aov_name = THIN_POINT_AOV
+        tree.links.new(thin.outputs["Value"], out.inputs["Value"])
+
+
+def leave_thin_pixels(path: Path, layer: str) -> None:
+    """Rewrite a Cycles pass EXR so pixels mostly of thin points take no part: their
+    Material Index becomes 0 (the post passes Cycles' subsurface there through) and the
+    :data:`THIN_POINT_AOV` part is dropped."""
+    aov = f"{layer}.{THIN_POINT_AOV}"
+    share = {}
+
+    def prepare(parts: dict) -> None:
+        if aov in parts:
+            (share["thin"],) = parts[aov].values()
+
+    def edit(name: str, channels: dict) -> tuple[str, dict] | None:
+        if name == aov:
+            return None
+        if name == f"{layer}.Material Index" and "thin" in share:
+            left = share["thin"] >= THIN_POINT_SHARE
+            channels = {k: np.where(left, 0.0, v).astype(v.dtype) for k, v in channels.items()}
+        return name, channels
+
+    rewrite_exr(path, edit, prepare)
 
 
 @dataclass

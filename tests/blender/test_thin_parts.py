@@ -5,6 +5,8 @@ test_apply_on_render_output.py; here the copies: their subsurface survives the p
 render's switch-off, also inside node groups, and everything is back afterwards.
 """
 
+import math
+
 import pytest
 
 bpy = pytest.importorskip("bpy")
@@ -116,11 +118,86 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
     kwargs = {"engine": "CYCLES", "reference": False, "log": None, "passes_only": True}
     standalone.render_sequence(demo, (1, 1), tmp_path / "out", ["none"], **kwargs)
     sidecar = json.loads((tmp_path / "out" / "passes" / "0001.json").read_text())
-    assert sidecar["thin_parts"] == ["flash Marble Top"]
+    assert sidecar["thin_parts"] == {
+        "objects": ["flash Marble Top"],
+        "points": True,
+        "mean_free_paths": 5.0,
+    }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
             demo, (1, 1), tmp_path / "out", ["none"], thin_walks="POST", **kwargs
         )
+
+
+def _walk(name: str):
+    """Random Walk, weight 1, Radius 1 per channel at Scale 4π cm: a mean free path of
+    about 1 cm (Radius × Scale / 4π), so thin means under about 5 cm."""
+    material = bpy.data.materials.new(name)
+    bsdf = material.node_tree.nodes["Principled BSDF"]
+    bsdf.subsurface_method = "RANDOM_WALK"
+    bsdf.inputs["Subsurface Weight"].default_value = 1.0
+    bsdf.inputs["Subsurface Radius"].default_value = (1.0, 1.0, 1.0)
+    bsdf.inputs["Subsurface Scale"].default_value = 0.04 * 3.14159
+    return material
+
+
+def _box(verts: list, x0, x1, y0, y1, z0, z1, faces: list) -> None:
+    base = len(verts)
+    verts += [(x, y, z) for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)]
+    for quad in (
+        (0, 1, 3, 2),
+        (4, 6, 7, 5),
+        (0, 4, 5, 1),
+        (2, 3, 7, 6),
+        (0, 2, 6, 4),
+        (1, 5, 7, 3),
+    ):
+        faces.append(tuple(base + i for i in quad))
+
+
+def test_thin_points_are_left_to_cycles(fresh, tmp_path, snapshot):
+    """One object of two parts: a 1-m block and, beside it, a 2-mm fin, both facing an
+    orthographic camera. The object is not thin (its smallest dimension is 1 m), but
+    every point of the fin has its far side 2 mm behind it: in the pass file the fin's
+    pixels take no part (Material Index 0) and the middle of the block's face, over
+    5 cm from any other of its faces, does (its slot, 1). Afterwards the scene is as
+    before."""
+    from cvsss.core.io.exr import read_frame
+    from cvsss.sss_addon.blender import standalone
+
+    verts, faces = [], []
+    _box(verts, 0.2, 1.2, 0.0, 1.0, -0.5, 0.5, faces)  # the block, its face at y = 0
+    _box(verts, -1.2, -0.2, 0.0, 0.002, -0.5, 0.5, faces)  # the fin
+    mesh = bpy.data.meshes.new("parts")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(_walk("walk"))
+    obj = bpy.data.objects.new("parts", mesh)
+    fresh.collection.objects.link(obj)
+    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    camera.data.type, camera.data.ortho_scale = "ORTHO", 2.6
+    camera.location, camera.rotation_euler = (0.0, -5.0, 0.0), (math.pi / 2, 0.0, 0.0)
+    fresh.collection.objects.link(camera)
+    fresh.camera = camera
+    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+    sun.rotation_euler = (math.pi / 2, 0.0, 0.0)  # shining along +y, onto both faces
+    fresh.collection.objects.link(sun)
+    fresh.render.engine = "CYCLES"
+    fresh.render.resolution_x, fresh.render.resolution_y = 52, 20
+    fresh.render.resolution_percentage = 100
+    fresh.cycles.samples = 8
+    bpy.context.view_layer.update()
+    assert thin_parts.thin_objects(fresh) == []
+    before = snapshot[0](fresh)
+    standalone.render_sequence(
+        fresh, (1, 1), tmp_path / "out", ["none"], engine="CYCLES", reference=False,
+        log=None, passes_only=True,
+    )  # fmt: skip
+    assert snapshot[1](before, snapshot[0](fresh)) == []
+    frame = read_frame(tmp_path / "out" / "passes" / "0001.exr")
+    # 2.6 m across 52 px: 0.05 m a pixel, x = 0 at column 26; rows 4-15 are z in ±0.3 m.
+    fin, block = frame.material[4:16, 6:20], frame.material[4:16, 33:47]
+    assert (fin == 0).all(), fin
+    assert (block[4:8, 5:9] == 1).all(), block
 
 
 def test_no_walk_no_thin_parts(fresh):

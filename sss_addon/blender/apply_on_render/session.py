@@ -254,6 +254,7 @@ class Session:
             user=user,
             guides=self.denoise is not None,
             thin=self.job.thin,
+            thin_points=self.job.thin_points,
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")
@@ -357,7 +358,7 @@ class Session:
                             specs,
                             layer,
                             self.job.denoise_passes,
-                            cycles_objects=self.job.thin_names,
+                            thin=self.job.thin_record,
                         )
             finally:
                 bpy.data.scenes.remove(copy)
@@ -397,7 +398,7 @@ class Session:
             scene.frame_set(frame)
         specs = sss_materials.material_specs(self.job.materials, scene)
         self.sidecars[frame] = pass_sidecar(
-            scene, frame, specs, self.job.view_layer, self.job.thin_names
+            scene, frame, specs, self.job.view_layer, self.job.thin_record
         )
         if self.output is not None and not self.movie:
             path = Path(self.output.render.frame_path(frame=frame))

@@ -115,7 +115,7 @@ class KeepingPassSetup(PassSetup):
 
     Parameters
     ----------
-    scene, materials, view_layer, engine, normal, denoise, guides, thin
+    scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points
         As :class:`.passes.PassSetup`.
     user : UserRender or None
         Its pass switches stay on (None: only the add-on's passes).
@@ -132,8 +132,11 @@ class KeepingPassSetup(PassSetup):
         user: UserRender | None = None,
         guides: bool = False,
         thin=(),
+        thin_points: bool = False,
     ) -> None:
-        super().__init__(scene, materials, view_layer, engine, normal, denoise, guides, thin)
+        super().__init__(
+            scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points
+        )
         self.user = user
 
     def _only_layer(self, wanted) -> None:
