@@ -140,6 +140,8 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
     edge, where Cycles' walk reaches surface the camera may not see. There the
     weight is the user's again (its value or its link); elsewhere it stays 0. The
     value AOV :data:`THIN_POINT_AOV` is 1 at thin points (:func:`leave_thin_pixels`).
+    An animated (unlinked) weight keeps there the value it had when the pass render
+    was set up: its animation stays muted, as for the points the post renders.
     ``new(tree, node type)`` makes a node the pass render removes afterwards. Random
     Walk materials only; a Principled BSDF shared through a node group is wired once.
     """
