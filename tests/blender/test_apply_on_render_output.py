@@ -356,6 +356,35 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
     np.testing.assert_allclose(frames["CYCLES"], composite, rtol=1e-6, atol=1e-7)
 
 
+def test_a_save_while_finishing_keeps_the_users_materials(scene, tmp_path, snapshot, monkeypatch):
+    """UI render of the flash demo switched to Random Walk (its thin top gets a copy of
+    the marble for the pass render). A save between Blender's render and the finishing
+    writes the user's scene: slots, materials and node groups as before the render, no
+    copy. The finishing then takes the pass configuration again and delivers the frames
+    a render without the save delivers."""
+    monkeypatch.setattr(handlers, "_on_render_thread", lambda: True)
+    _random_walk(scene)
+    frames = {}
+    for saved in (False, True):
+        scene.render.filepath = str(tmp_path / f"saved_{saved}" / "f_")
+        before = snapshot[0](scene)
+        names = sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+        assert "flash Marble Top" in active_session().job.thin_record["objects"]
+        if saved:
+            handlers.on_save_pre()  # what Blender calls around Ctrl-S
+            assert snapshot[1](before, snapshot[0](scene)) == []
+            assert (sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())) == names
+            handlers.on_save_post()
+        handlers._poll()  # the UI's timer: finishes
+        assert snapshot[1](before, snapshot[0](scene)) == [] and active_session() is None
+        assert (sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())) == names
+        frames[saved] = {f: _read(Path(scene.render.frame_path(frame=f))) for f in FRAMES}
+    for frame in FRAMES:
+        for key, pixels in frames[False][frame].items():
+            np.testing.assert_array_equal(frames[True][frame][key], pixels, err_msg=key)
+
+
 def test_ui_finishes_through_the_users_compositor(scene, tmp_path, snapshot, monkeypatch):
     """With the UI (the handlers on Blender's render thread, the frames finished after the
     render job) the compositor runs on the finished frames as in background mode."""
