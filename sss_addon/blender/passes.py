@@ -420,56 +420,41 @@ class PassSetup(SceneSetup):
             if tree.as_pointer() in done:
                 continue
             done.add(tree.as_pointer())
-            layer = self.view_layer
-            if not any(aov.name == WEIGHT_AOV for aov in layer.aovs):
-                aov = layer.aovs.add()
-                aov.name = WEIGHT_AOV
-                aov.type = "VALUE"
-                self._weight_aov = aov
-            node = tree.nodes.new("ShaderNodeOutputAOV")
-            self._aov_nodes.append((tree, node.name))
+            self._layer_aov(WEIGHT_AOV, "_weight_aov", "VALUE")
+            node = self._new_node(tree, "ShaderNodeOutputAOV")
             node.aov_name = WEIGHT_AOV
             tree.links.new(from_socket, node.inputs["Value"])
 
     def _add_thin_points(self) -> None:
         """The value AOV of thin points, and the nodes that keep their subsurface on."""
-        layer = self.view_layer
-        if not any(aov.name == THIN_POINT_AOV for aov in layer.aovs):
-            aov = layer.aovs.add()
-            aov.name = THIN_POINT_AOV
-            aov.type = "VALUE"
-            self._thin_aov = aov
-
-        def new(tree, kind: str):
-            node = tree.nodes.new(kind)
-            self._aov_nodes.append((tree, node.name))
-            return node
-
+        self._layer_aov(THIN_POINT_AOV, "_thin_aov", "VALUE")
         for material in self.materials:
-            thin_point_nodes(material, new)
+            thin_point_nodes(material, self._new_node)
+
+    def _layer_aov(self, name: str, attr: str, kind: str) -> None:
+        """Give the view layer the AOV ``name`` of ``kind`` ("VALUE", "COLOR") unless it
+        has one; the one added is kept in ``attr``, which :meth:`restore` removes."""
+        layer = self.view_layer
+        if not any(aov.name == name for aov in layer.aovs):
+            aov = layer.aovs.add()
+            aov.name = name
+            aov.type = kind
+            setattr(self, attr, aov)
+
+    def _new_node(self, tree, kind: str):
+        """A new node of ``kind`` in ``tree``, which :meth:`restore` removes."""
+        node = tree.nodes.new(kind)
+        self._aov_nodes.append((tree, node.name))
+        return node
 
     def _add_material_aov(self) -> None:
         """EEVEE: write each material's slot to the value AOV ``cvsss_material``, its
         object's Pass Index to ``cvsss_object`` and (1, slot², index²) to the colour
         AOV ``cvsss_cover`` (:mod:`.eevee_labels`)."""
-        layer = self.view_layer
-        aovs = (
-            (AOV_NAME, "_aov", "VALUE"),
-            (OBJECT_AOV, "_object_aov", "VALUE"),
-            (COVER_AOV, "_cover_aov", "COLOR"),
-        )
-        for name, attr, kind in aovs:
-            if not any(aov.name == name for aov in layer.aovs):
-                aov = layer.aovs.add()
-                aov.name = name
-                aov.type = kind
-                setattr(self, attr, aov)
-
-        def new(tree, kind: str):
-            node = tree.nodes.new(kind)
-            self._aov_nodes.append((tree, node.name))
-            return node
-
+        self._layer_aov(AOV_NAME, "_aov", "VALUE")
+        self._layer_aov(OBJECT_AOV, "_object_aov", "VALUE")
+        self._layer_aov(COVER_AOV, "_cover_aov", "COLOR")
+        new = self._new_node
         for slot, material in enumerate(self.materials, 1):
             tree = material.node_tree
             node = new(tree, "ShaderNodeOutputAOV")
