@@ -18,10 +18,11 @@ afterwards, also on error.
 
 Thin features of thick objects (an ear, a fin, the rim along an edge) are found
 per shading point instead: :func:`thin_point_nodes` gives the material's weight
-back where an Ambient Occlusion node looking inside meets the part's own surface
-within the same bound, and :func:`leave_thin_pixels` takes the pixels made mostly
-of such points out of the post. Apply on Render, ``cvsss render`` and the farm's
-pass chunks all follow the setting.
+back where Ambient Occlusion nodes looking inside meet the part's own surface
+within the same bound (a thin feature) or within a shorter one (the rim along an
+edge, where the walk leaves through the other face), and :func:`leave_thin_pixels`
+takes the pixels made mostly of such points out of the post. Apply on Render,
+``cvsss render`` and the farm's pass chunks all follow the setting.
 """
 
 from __future__ import annotations
@@ -86,6 +87,14 @@ THIN_POINT_RAYS = 4
 #: THIN_MEAN_FREE_PATHS mean free paths; a pixel is left to Cycles when at least this
 #: share of its samples were thin points.
 THIN_POINT_SHARE = 0.5
+#: A point is on the rim of an edge when at least half of another node's rays (fewer
+#: than this share unhit) meet the part's own surface within THIN_EDGE_MEAN_FREE_PATHS:
+#: at a right-angled edge half of them head for the other face. Two, because with it the
+#: rims of the demo's marble block (20 mean free paths across) went to Cycles and came
+#: out closer to the ground truth, while with three or four more of the candles' wax
+#: (about six across) went too and came out further (docs/explanation/accuracy.md §2.3).
+THIN_EDGE_MEAN_FREE_PATHS = 2.0
+THIN_EDGE_SHARE = 0.75
 
 
 def has_walks(materials) -> bool:
@@ -101,6 +110,7 @@ def record(objects: list[str], points: bool) -> dict:
         "objects": sorted(objects),
         "points": bool(points),
         "mean_free_paths": THIN_MEAN_FREE_PATHS,
+        "edge_mean_free_paths": THIN_EDGE_MEAN_FREE_PATHS,
     }
 
 
@@ -136,9 +146,10 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
 
     A point is thin when most inward rays of an Ambient Occlusion node (Inside,
     Only Local, :data:`THIN_POINT_RAYS` rays) meet the part's own surface within
-    :data:`THIN_MEAN_FREE_PATHS` mean free paths: an ear, a fin, the rim of an
-    edge, where Cycles' walk reaches surface the camera may not see. There the
-    weight is the user's again (its value or its link); elsewhere it stays 0. The
+    :data:`THIN_MEAN_FREE_PATHS` mean free paths (an ear, a fin), or at least half
+    of a second node's meet it within :data:`THIN_EDGE_MEAN_FREE_PATHS` (the rim
+    along an edge): where Cycles' walk reaches surface the camera may not see. There
+    the weight is the user's again (its value or its link); elsewhere it stays 0. The
     value AOV :data:`THIN_POINT_AOV` is 1 at thin points (:func:`leave_thin_pixels`).
     An animated (unlinked) weight keeps there the value it had when the pass render
     was set up: its animation stays muted, as for the points the post renders.
@@ -153,15 +164,21 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
         if saved is None or saved.wired:
             continue
         saved.wired = True
-        ao = new(tree, "ShaderNodeAmbientOcclusion")
-        ao.inside = True
-        ao.only_local = True
-        ao.samples = THIN_POINT_RAYS
-        ao.inputs["Distance"].default_value = THIN_MEAN_FREE_PATHS * ell
         thin = new(tree, "ShaderNodeMath")
-        thin.operation = "LESS_THAN"
-        tree.links.new(ao.outputs["AO"], thin.inputs[0])
-        thin.inputs[1].default_value = THIN_POINT_SHARE
+        thin.operation = "MAXIMUM"
+        for i, (paths, share) in enumerate(
+            ((THIN_MEAN_FREE_PATHS, THIN_POINT_SHARE), (THIN_EDGE_MEAN_FREE_PATHS, THIN_EDGE_SHARE))
+        ):
+            ao = new(tree, "ShaderNodeAmbientOcclusion")
+            ao.inside = True
+            ao.only_local = True
+            ao.samples = THIN_POINT_RAYS
+            ao.inputs["Distance"].default_value = paths * ell
+            hit = new(tree, "ShaderNodeMath")
+            hit.operation = "LESS_THAN"
+            tree.links.new(ao.outputs["AO"], hit.inputs[0])
+            hit.inputs[1].default_value = share
+            tree.links.new(hit.outputs["Value"], thin.inputs[i])
         weight = new(tree, "ShaderNodeMath")
         weight.operation = "MULTIPLY"
         tree.links.new(thin.outputs["Value"], weight.inputs[0])

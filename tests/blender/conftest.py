@@ -231,6 +231,22 @@ def snapshot():
     return scene_state, state_diff
 
 
+def _walk_everywhere() -> None:
+    import bpy
+
+    for material in bpy.data.materials:
+        for node in material.node_tree.nodes if material.node_tree else ():
+            if node.bl_idname == "ShaderNodeBsdfPrincipled":
+                node.subsurface_method = "RANDOM_WALK"
+
+
+@pytest.fixture
+def walk_everywhere():
+    """Function () -> None that sets every Principled BSDF of the file to Random Walk
+    (Blender's default), as a user switching a demo scene would."""
+    return _walk_everywhere
+
+
 # -- an independent denoise ------------------------------------------------------------------
 def _image(name: str, rgb: np.ndarray, non_color: bool):
     import bpy

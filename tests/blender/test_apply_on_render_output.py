@@ -281,14 +281,7 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     assert denoised not in scene_notes(scene)
 
 
-def _random_walk(scene) -> None:
-    for material in bpy.data.materials:
-        for node in material.node_tree.nodes if material.node_tree else ():
-            if node.bl_idname == "ShaderNodeBsdfPrincipled":
-                node.subsurface_method = "RANDOM_WALK"
-
-
-def test_the_panel_notes_parts_thin_for_random_walk(scene):
+def test_the_panel_notes_parts_thin_for_random_walk(scene, walk_everywhere):
     """The flash demo's marble table top is 2 cm thick, two mean free paths of its marble
     (Burley d = 1 cm in red, the demo's D_MAX); every other subsurface object is over
     10 cm. Only with Random Walk, and only while under 5 mean free paths, is it noted;
@@ -299,7 +292,7 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene):
         head + "Cycles loses light through the far side, the post keeps it (brighter than Cycles)"
     )
     assert not [n for n in scene_notes(scene) if "Random Walk" in n]  # Christensen-Burley
-    _random_walk(scene)
+    walk_everywhere()
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == [cycles]
     scene.sss_settings.thin_walks = "POST"
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == [post]
@@ -313,7 +306,7 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene):
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == []
 
 
-def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
+def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, walk_everywhere):
     """Switched to Random Walk, the flash demo's 2-cm marble top is thin. Cycles' walk
     loses light through its far side: at 1024 spp its top returns 0.86 / 0.90 / 0.93 (R /
     G / B) of the top without subsurface (frame 21, docs/explanation/accuracy.md §2.3),
@@ -321,7 +314,7 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
     that much darker than the post makes it, most in red, and the user's scene, slots and
     materials are back afterwards. ``cvsss render`` of the same frame composites the
     same frame (the setting is the scene's, for every way of rendering)."""
-    _random_walk(scene)
+    walk_everywhere()
     scene.frame_set(21)
     scene.cycles.samples = 16
     scene.cycles.use_denoising = False
@@ -356,14 +349,16 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot):
     np.testing.assert_allclose(frames["CYCLES"], composite, rtol=1e-6, atol=1e-7)
 
 
-def test_a_save_while_finishing_keeps_the_users_materials(scene, tmp_path, snapshot, monkeypatch):
+def test_a_save_while_finishing_keeps_the_users_materials(
+    scene, tmp_path, snapshot, monkeypatch, walk_everywhere
+):
     """UI render of the flash demo switched to Random Walk (its thin top gets a copy of
     the marble for the pass render). A save between Blender's render and the finishing
     writes the user's scene: slots, materials and node groups as before the render, no
     copy. The finishing then takes the pass configuration again and delivers the frames
     a render without the save delivers."""
     monkeypatch.setattr(handlers, "_on_render_thread", lambda: True)
-    _random_walk(scene)
+    walk_everywhere()
     frames = {}
     for saved in (False, True):
         scene.render.filepath = str(tmp_path / f"saved_{saved}" / "f_")

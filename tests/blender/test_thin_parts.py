@@ -38,13 +38,6 @@ def _grouped_walk(name: str):
     return material, group
 
 
-def _walk_everywhere() -> None:
-    for material in bpy.data.materials:
-        for node in material.node_tree.nodes if material.node_tree else ():
-            if node.bl_idname == "ShaderNodeBsdfPrincipled":
-                node.subsurface_method = "RANDOM_WALK"
-
-
 def _slab(scene, name: str, material, thickness: float):
     mesh = bpy.data.meshes.new(name)
     mesh.from_pydata(
@@ -88,13 +81,13 @@ def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
     assert (sorted(bpy.data.materials.keys()), sorted(bpy.data.node_groups.keys())) == names
 
 
-def test_the_job_lists_thin_parts_where_cycles_renders_them(demo):
+def test_the_job_lists_thin_parts_where_cycles_renders_them(demo, walk_everywhere):
     """``cvsss render``'s job (and Apply on Render's) on the flash demo switched to Random
     Walk: its 2-cm top, with the scene's setting (Cycles) on Cycles passes; none when the
     post renders them, nor on EEVEE passes (EEVEE's own subsurface is not Cycles')."""
     from cvsss.sss_addon.blender.render import job_from_scene
 
-    _walk_everywhere()
+    walk_everywhere()
 
     def names(**kwargs) -> list[str]:
         return [obj.name for obj, _ in job_from_scene(demo, **kwargs).thin]
@@ -106,7 +99,7 @@ def test_the_job_lists_thin_parts_where_cycles_renders_them(demo):
     assert names(engine="CYCLES") == [] and names(engine="CYCLES", thin_walks="CYCLES")
 
 
-def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
+def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhere):
     """The pass sidecar names the parts Cycles rendered; reusing those passes when the
     post is to render them instead is refused, as for another camera or material."""
     import json
@@ -114,7 +107,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
     from cvsss.sss_addon.blender import standalone
     from cvsss.sss_addon.blender.errors import RenderError
 
-    _walk_everywhere()
+    walk_everywhere()
     kwargs = {"engine": "CYCLES", "reference": False, "log": None, "passes_only": True}
     standalone.render_sequence(demo, (1, 1), tmp_path / "out", ["none"], **kwargs)
     sidecar = json.loads((tmp_path / "out" / "passes" / "0001.json").read_text())
@@ -122,6 +115,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
         "objects": ["flash Marble Top"],
         "points": True,
         "mean_free_paths": 5.0,
+        "edge_mean_free_paths": 2.0,
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
@@ -129,15 +123,16 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path):
         )
 
 
-def _walk(name: str):
-    """Random Walk, weight 1, Radius 1 per channel at Scale 4π cm: a mean free path of
-    about 1 cm (Radius × Scale / 4π), so thin means under about 5 cm."""
+def _walk(name: str, mean_free_path: float = 0.01):
+    """Random Walk, weight 1, Radius 1 per channel at Scale 4π × ``mean_free_path``
+    (m): that mean free path (Radius × Scale / 4π); by default 1 cm, so thin means
+    under about 5 cm."""
     material = bpy.data.materials.new(name)
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.subsurface_method = "RANDOM_WALK"
     bsdf.inputs["Subsurface Weight"].default_value = 1.0
     bsdf.inputs["Subsurface Radius"].default_value = (1.0, 1.0, 1.0)
-    bsdf.inputs["Subsurface Scale"].default_value = 0.04 * 3.14159
+    bsdf.inputs["Subsurface Scale"].default_value = 4.0 * math.pi * mean_free_path
     return material
 
 
@@ -162,42 +157,71 @@ def test_thin_points_are_left_to_cycles(fresh, tmp_path, snapshot):
     pixels take no part (Material Index 0) and the middle of the block's face, over
     5 cm from any other of its faces, does (its slot, 1). Afterwards the scene is as
     before."""
-    from cvsss.core.io.exr import read_frame
-    from cvsss.sss_addon.blender import standalone
-
     verts, faces = [], []
     _box(verts, 0.2, 1.2, 0.0, 1.0, -0.5, 0.5, faces)  # the block, its face at y = 0
     _box(verts, -1.2, -0.2, 0.0, 0.002, -0.5, 0.5, faces)  # the fin
     mesh = bpy.data.meshes.new("parts")
     mesh.from_pydata(verts, [], faces)
     mesh.materials.append(_walk("walk"))
-    obj = bpy.data.objects.new("parts", mesh)
-    fresh.collection.objects.link(obj)
-    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
-    camera.data.type, camera.data.ortho_scale = "ORTHO", 2.6
-    camera.location, camera.rotation_euler = (0.0, -5.0, 0.0), (math.pi / 2, 0.0, 0.0)
-    fresh.collection.objects.link(camera)
-    fresh.camera = camera
-    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.rotation_euler = (math.pi / 2, 0.0, 0.0)  # shining along +y, onto both faces
-    fresh.collection.objects.link(sun)
-    fresh.render.engine = "CYCLES"
-    fresh.render.resolution_x, fresh.render.resolution_y = 52, 20
-    fresh.render.resolution_percentage = 100
-    fresh.cycles.samples = 8
-    bpy.context.view_layer.update()
-    assert thin_parts.thin_objects(fresh) == []
-    before = snapshot[0](fresh)
-    standalone.render_sequence(
-        fresh, (1, 1), tmp_path / "out", ["none"], engine="CYCLES", reference=False,
-        log=None, passes_only=True,
-    )  # fmt: skip
-    assert snapshot[1](before, snapshot[0](fresh)) == []
-    frame = read_frame(tmp_path / "out" / "passes" / "0001.exr")
+    fresh.collection.objects.link(bpy.data.objects.new("parts", mesh))
+    frame = _pass_facing(fresh, tmp_path, snapshot, samples=8)
     # 2.6 m across 52 px: 0.05 m a pixel, x = 0 at column 26; rows 4-15 are z in ±0.3 m.
     fin, block = frame.material[4:16, 6:20], frame.material[4:16, 33:47]
     assert (fin == 0).all(), fin
     assert (block[4:8, 5:9] == 1).all(), block
+
+
+def _pass_facing(scene, tmp_path, snapshot, samples: int):
+    """The Cycles pass render of frame 1 through an orthographic camera 2.6 m across
+    52 × 20 px, looking along +y at x = z = 0, with a box pixel filter (a pixel's
+    samples are its own footprint's) and a sun shining along +y; the scene must have
+    no thin object, and is as before afterwards. Returns the pass file's frame."""
+    from cvsss.core.io.exr import read_frame
+    from cvsss.sss_addon.blender import standalone
+
+    camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    camera.data.type, camera.data.ortho_scale = "ORTHO", 2.6
+    camera.location, camera.rotation_euler = (0.0, -5.0, 0.0), (math.pi / 2, 0.0, 0.0)
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+    sun.rotation_euler = (math.pi / 2, 0.0, 0.0)  # shining along +y, onto the faces
+    scene.collection.objects.link(sun)
+    scene.render.engine = "CYCLES"
+    scene.render.resolution_x, scene.render.resolution_y = 52, 20
+    scene.render.resolution_percentage = 100
+    scene.cycles.pixel_filter_type = "BOX"
+    scene.cycles.samples = samples
+    bpy.context.view_layer.update()
+    assert thin_parts.thin_objects(scene) == []
+    before = snapshot[0](scene)
+    standalone.render_sequence(
+        scene, (1, 1), tmp_path / "out", ["none"], engine="CYCLES", reference=False,
+        log=None, passes_only=True,
+    )  # fmt: skip
+    assert snapshot[1](before, snapshot[0](scene)) == []
+    return read_frame(tmp_path / "out" / "passes" / "0001.exr")
+
+
+def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
+    """A 2-m cube of a material with a 20-cm mean free path (ten across: not thin)
+    faces the camera. At a right-angled edge half the inward directions head for the
+    other face, so a point within a fraction of a mean free path of the edge has at
+    least half its rays meet it within two: the pixel column along each side edge,
+    a quarter of a mean free path wide, is left to Cycles (Material Index 0) for most
+    of its pixels, while the face's middle, over three mean free paths from any edge,
+    is not."""
+    verts, faces = [], []
+    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
+    mesh = bpy.data.meshes.new("cube")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(_walk("walk", mean_free_path=0.2))
+    fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
+    frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
+    # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
+    rims = frame.material[4:16, [6, 45]]
+    assert (rims == 0).sum() >= 2 * rims.size // 3, rims
+    assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
 
 
 def test_no_walk_no_thin_parts(fresh):
