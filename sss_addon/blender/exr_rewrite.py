@@ -7,6 +7,7 @@ from pathlib import Path
 
 import OpenEXR
 
+from ...core.io.atomic import write_files
 from ...core.io.exr import use_threads
 
 
@@ -15,7 +16,8 @@ def rewrite_exr(
     edit: Callable[[str, dict], tuple[str, dict] | None],
     prepare: Callable[[dict], None] | None = None,
 ) -> None:
-    """Rewrite a multilayer EXR in place, part by part, keeping every header.
+    """Rewrite a multilayer EXR in place, part by part, keeping every header; atomically,
+    so a run killed meanwhile leaves the file as it was, never half written.
 
     ``edit(part name, {channel: pixels})`` returns the part's new name and
     channels, or None to drop the part. ``prepare({part name: {channel:
@@ -39,4 +41,4 @@ def rewrite_exr(
         edited = edit(name, channels)
         if edited is not None:
             parts.append(OpenEXR.Part(header, edited[1], edited[0]))
-    OpenEXR.File(parts).write(str(path))
+    write_files([(Path(path), OpenEXR.File(parts))], overwrite=True)
