@@ -420,8 +420,10 @@ class SSSParams(_Params):
         "material or object), read the pixel opposite it through the shaded pixel when "
         "that pixel is on the same surface: the hidden side is taken to continue as the "
         "visible one, so a rim lit harder than the surface below it loses light into it "
-        "as in Cycles (the top edge of a candle under its flame). Off, or where the "
-        "opposite pixel is not on the surface, Hidden Light applies",
+        "as in Cycles (the top edge of a candle under its flame). Christensen-Burley "
+        "materials only: Cycles' random walk leaves through the hidden side instead. Off, "
+        "for Random Walk materials, or where the opposite pixel is not on the surface, "
+        "Hidden Light applies",
         advanced=True,
     )
     contact: float = param(

@@ -150,6 +150,23 @@ from ..sampling.qmc import DIRECTIONS
 from .samples import active_pixels, batch_sums
 
 
+def mirror_slots(profile, hidden_mirror: bool) -> np.ndarray | None:
+    """(K,) bool: the slots of ``profile`` whose hidden-surface samples read the mirror
+    image (``hidden_mirror``), or None when none does.
+
+    Christensen-Burley slots only. Cycles' disk probes read the light on the hidden
+    side, which the mirror stands in for; its random walk leaves through that side and
+    loses what goes out there, so on the demo scenes switched to Random Walk the mirror
+    moved their frames away from Cycles' (docs/explanation/accuracy.md §2.1).
+    """
+    if not hidden_mirror:
+        return None
+    slots = np.ones(profile.n_slots, np.bool_)
+    if profile.energy is not None:
+        slots &= ~profile.energy.modelled()
+    return slots if slots.any() else None
+
+
 @dataclass
 class DistantEstimate:
     """Result of the Monte Carlo step.
@@ -214,7 +231,8 @@ def estimate_distant(
         continuing under it (module doc, *Objects*); 0: no such samples
     hidden_mirror : bool, a hidden-surface sample reads the pixel opposite it through
         the centre where that pixel is on the centre's surface (module doc, *Hidden
-        surface*); before ``hidden_light``
+        surface*); before ``hidden_light``; Christensen-Burley slots only
+        (:func:`mirror_slots`)
 
     Returns
     -------
@@ -240,6 +258,7 @@ def estimate_distant(
     else:
         distant = geom.gamma * geom.at(lighting).astype(np.float64)
     counted = total if geom.core is None else int(act_counts[geom.core[active]].sum())
+    hidden_mirror = mirror_slots(profile, hidden_mirror)
     var_sums, fallback = distant_sums(
         geom, profile, counts, active, lighting, depth, frame=frame, seed=seed,
         depth_slope=depth_slope, variance=variance, disk=disk, hidden_light=hidden_light,
@@ -309,7 +328,7 @@ def distant_sums(
     disk: bool,
     hidden_light: float,
     contact: float,
-    hidden_mirror: bool,
+    hidden_mirror: np.ndarray | None,
     chunk_samples: int,
     distant: np.ndarray,
     start: bool,
@@ -321,7 +340,9 @@ def distant_sums(
     Parameters
     ----------
     geom, profile, lighting, depth, frame, seed, depth_slope, variance, disk,
-    hidden_light, contact, hidden_mirror, chunk_samples : as :func:`estimate_distant`
+    hidden_light, contact, chunk_samples : as :func:`estimate_distant`
+    hidden_mirror : (K,) bool or None, the slots that read the mirror image
+        (:func:`mirror_slots`)
     counts : (G,) int64, samples per SSS pixel; active : (P,) int64, the pixels of
         ``geom`` that take samples (counts > 0 and Σγ > 0)
     distant : (G, 3) float64, written in place: γ·B(p) on entry (with ``start``, every
@@ -390,7 +411,7 @@ def _distant_sums_compiled(
     disk: bool,
     hidden_light: float,
     contact: float,
-    hidden_mirror: bool,
+    hidden_mirror: np.ndarray | None,
     chunk_samples: int,
     distant: np.ndarray,
     start: bool,
@@ -476,7 +497,7 @@ def _distant_sums_compiled(
         f32(geom.fw[first] / geom.fh[first]),
         bool(disk),
         f32(hidden_light),
-        bool(hidden_mirror),
+        np.zeros(profile.n_slots, np.bool_) if hidden_mirror is None else hidden_mirror,
         geom.direct if geom.direct is not None else np.zeros((geom.size, 3), f32),
         geom.objects is not None,
         inv_k,

@@ -229,7 +229,7 @@ def batch_sums(
     disk: bool = False,
     hidden_light: float = 1.0,
     contact: float = 0.0,
-    mirror: bool = False,
+    mirror: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, int]:
     """Per active pixel Σ_k w_c·(B_c(q_k) − B_c(p)), luminance sums and fall-backs (NumPy).
 
@@ -387,15 +387,15 @@ def batch_sums(
         # centre's surface; otherwise it counts with the centre's light less (1 − β) of
         # its direct part. Both at its planar weight (module doc, *Hidden surface*).
         fill = None
-        if fill_value is not None or mirror:
+        if fill_value is not None or mirror is not None:
             fill = inside & ~ok
             if touching is not None:
                 fill &= ~touching
             fill &= ~(zp - zq > np.float32(0.1) * zp)
             mirrored = None
-            if mirror and fill.any():
+            if mirror is not None and fill.any():
                 mirrored_q = _mirrored(
-                    fill, px, py, fx, fy, zp, tol, mat, centre_idx,
+                    fill & np.take(mirror, mat), px, py, fx, fy, zp, tol, mat, centre_idx,
                     slots, objects, depth32, w, h, ox, oy,
                 )  # fmt: skip
                 mirrored = mirrored_q >= 0

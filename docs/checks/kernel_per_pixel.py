@@ -25,7 +25,7 @@ from shared import timed_kernel
 from cvsss.core.backends.numba import sampling as estimator_numba
 from cvsss.core.bench.gather import gather_ns_per_sample
 from cvsss.core.geometry import geometry_of
-from cvsss.core.mc.estimator import _distant_sums_compiled
+from cvsss.core.mc.estimator import _distant_sums_compiled, mirror_slots
 from cvsss.core.params import SSSParams
 from cvsss.core.profiles.factory import ProfileCache
 from cvsss.core.synthetic import scene_frame
@@ -58,7 +58,7 @@ def main() -> None:
                             geom, profile, counts, active, frame.lighting, frame.depth,
                             frame=2, seed=0, depth_slope=params.depth_slope, variance=False,
                             disk=True, hidden_light=1.0, contact=params.contact,
-                            hidden_mirror=params.hidden_mirror,
+                            hidden_mirror=mirror_slots(profile, params.hidden_mirror),
                             chunk_samples=1 << 16, distant=np.zeros((geom.size, 3)),
                             start=False, samples=int(counts[active].sum()),
                         )  # fmt: skip

@@ -83,7 +83,7 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
     from shared import steady_geometry
 
     from cvsss.core.backends.numba import sampling as en
-    from cvsss.core.mc.estimator import _distant_sums_compiled
+    from cvsss.core.mc.estimator import _distant_sums_compiled, mirror_slots
     from cvsss.core.params import SSSParams
 
     params = SSSParams(backend="numba")
@@ -98,7 +98,7 @@ def child(folder: Path, size: tuple[int, int], counts: int | None, calls: int) -
             geom, profile, n, active, frame.lighting, frame.depth, frame=frame.number,
             seed=params.seed, depth_slope=params.depth_slope, variance=True, disk=True,
             hidden_light=params.hidden_light, contact=params.contact,
-            hidden_mirror=params.hidden_mirror, chunk_samples=1 << 16,
+            hidden_mirror=mirror_slots(profile, params.hidden_mirror), chunk_samples=1 << 16,
             distant=np.empty((geom.size, 3)), start=active.size == geom.size,
             samples=int(n[active].sum()),
         )  # fmt: skip

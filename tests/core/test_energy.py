@@ -278,3 +278,35 @@ def test_the_halo_covers_the_curvatures_neighbours():
     tiny = _with(still, s1=_walk(still.materials[1], subsurface_scale=1e-4))
     tiny = _with(tiny, s2=dataclasses.replace(tiny.materials[2], d=(1e-5,) * 3))
     assert halo_px(tiny, frame_profile(tiny, SSSParams())) == REACH == 2
+
+
+# -- hidden surface ------------------------------------------------------------------------
+def test_random_walk_slots_do_not_read_the_mirror_image():
+    """Mirror Hidden Light stands in for the light Cycles' disk probes read on the hidden
+    side; a walk leaves through that side instead (accuracy §2.1). So a Random Walk
+    slot's hidden-surface samples take the centre's light with the mirror on as off,
+    while a Christensen-Burley slot's read the mirror image there."""
+    from cvsss.core.geometry import geometry_of
+    from cvsss.core.mc.estimator import estimate_distant, mirror_slots
+
+    flash = synthetic.scene_frame("flash", 2, 160, 90)
+    walked = _with(flash, s1=_walk(flash.materials[1]))
+    runs = {}
+    for name, frame in (("burley", flash), ("walk", walked)):
+        profile = frame_profile(frame, SSSParams())
+        geom = geometry_of(frame, profile, surface_distance=True)
+        counts = np.full(geom.size, 16, np.int64)
+        for mirror in (False, True):
+            est = estimate_distant(
+                geom, frame.lighting, frame.depth, profile, counts, frame=2, seed=0,
+                depth_slope=2.0, disk=True, hidden_mirror=mirror,
+            )  # fmt: skip
+            runs[name, mirror] = geom.mat.copy(), est.distant
+    assert mirror_slots(frame_profile(walked, SSSParams()), True).tolist() == [True, False, True]
+    assert mirror_slots(frame_profile(walked, SSSParams()), False) is None
+    for name, slot_changes in (("burley", {1: True, 2: True}), ("walk", {1: False, 2: True})):
+        mat, off = runs[name, False]
+        _, on = runs[name, True]
+        for slot, changes in slot_changes.items():
+            rows = mat == slot
+            assert (not np.array_equal(on[rows], off[rows])) == changes, (name, slot)

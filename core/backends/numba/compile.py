@@ -146,7 +146,7 @@ def _compile_sampling(fn) -> None:
         f32(1.0),
         False,
         f32(1.0),
-        False,
+        np.zeros(2, np.bool_),  # the mirror, per slot
         np.zeros((1, 3), f32),
         False,
         f32(1.0),

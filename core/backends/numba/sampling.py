@@ -197,8 +197,8 @@ def _pixel_sums(
     disk : bool, weigh with the kernel of Cycles' disk estimator (texel normals)
     hidden : float32, the hidden-light share β (< 1: rejected samples on the background
         or another material or object count −(1 − β)·B_direct(p) at their planar weight)
-    mirror : bool, a hidden-surface sample first reads the pixel opposite it through
-        the centre, where that pixel has the centre's key and lies within the sample's
+    mirror : (K,) bool, per slot: a hidden-surface sample of a centre of that slot
+        first reads the pixel opposite it through the centre, where that pixel has the centre's key and lies within the sample's
         depth tolerance of the centre (B(q') − B(p) at its planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     use_obj : bool, the texels' slot carries the object (``slot + K·object``):
@@ -589,7 +589,7 @@ def _pixel_sums(
                         # Hidden surface: on the image, not in front of the centre.
                         hid = inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
-                        if mirror and hid:
+                        if mirror[mat] and hid:
                             # The pixel opposite through the centre, if on its surface.
                             mxf = np.float32(2.0) * px - fb[_ROW_FX + j]
                             myf = np.float32(2.0) * py - fb[_ROW_FY + j]

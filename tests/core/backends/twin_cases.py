@@ -23,6 +23,7 @@ import numpy as np
 
 from cvsss.core.camera import Camera
 from cvsss.core.geometry import geometry_of
+from cvsss.core.mc.estimator import mirror_slots as mirror_of
 from cvsss.core.mc.history import H_FIELDS, J_FIELDS, T_FIELDS, History
 from cvsss.core.params import SeparableParams, SSSParams
 from cvsss.core.profiles.burley import BurleyProfile
@@ -116,6 +117,11 @@ def _sampling(frame, distance: str, params=None, *, variance=False, hidden=1.0,
         counts = counts % (period - 1) + 1  # every pixel active
     active = np.flatnonzero((counts > 0) & (geom.gamma_sum > 0))
     assert not start or active.size == geom.size
+    # True: every slot reads the mirror image; "some": every other slot (as where
+    # Random Walk slots do not, core.mc.estimator.mirror_slots).
+    mirror_slots = (
+        np.arange(profile.n_slots) % 2 == 1 if mirror == "some" else mirror_of(profile, mirror)
+    )
 
     def build(backend):
         distant = (
@@ -126,7 +132,7 @@ def _sampling(frame, distance: str, params=None, *, variance=False, hidden=1.0,
         kwargs = dict(
             frame=int(frame.number), seed=7, depth_slope=2.0, variance=variance,
             disk=distance == "cycles", hidden_light=hidden, contact=contact,
-            hidden_mirror=mirror, chunk_samples=1 << 16, distant=distant, start=start,
+            hidden_mirror=mirror_slots, chunk_samples=1 << 16, distant=distant, start=start,
             samples=int(counts[active].sum()), backend=backend,
         )  # fmt: skip
         return (geom, profile, counts, active, frame.lighting, frame.depth), kwargs
@@ -157,6 +163,8 @@ def sampling_cases() -> list[Case]:
         for hidden in (1.0, 0.5):
             build, check = _sampling(frame, distance, variance=True, hidden=hidden, mirror=True)
             cases.append(Case(f"{distance}-mirror-hidden{hidden:g}", build, check))
+        build, check = _sampling(frame, distance, variance=True, hidden=0.5, mirror="some")
+        cases.append(Case(f"{distance}-mirror-some-slots", build, check))
         # A crop: the mirror image's pixel in the crop's coordinates.
         build, check = _sampling(surface_frames()["crop"], distance, mirror=True)
         cases.append(Case(f"{distance}-mirror-crop", build, check))

@@ -139,7 +139,7 @@ def _compiled_sums(geom, frame, profile, counts, active, *, start=False, varianc
     var, fallback = estimator._distant_sums_compiled(
         geom, profile, counts, active, frame.lighting, frame.depth, frame=frame.number,
         seed=0, depth_slope=2.0, variance=variance, disk=True, hidden_light=0.75,
-        hidden_mirror=True, contact=0.5, chunk_samples=1 << 16, distant=distant, start=start,
+        hidden_mirror=estimator.mirror_slots(profile, True), contact=0.5, chunk_samples=1 << 16, distant=distant, start=start,
         samples=int(counts[active].sum()),
     )  # fmt: skip
     return distant, var, fallback
