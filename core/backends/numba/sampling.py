@@ -198,8 +198,9 @@ def _pixel_sums(
     hidden : float32, the hidden-light share β (< 1: rejected samples on the background
         or another material or object count −(1 − β)·B_direct(p) at their planar weight)
     mirror : (K,) bool, per slot: a hidden-surface sample of a centre of that slot
-        first reads the pixel opposite it through the centre, where that pixel has the centre's key and lies within the sample's
-        depth tolerance of the centre (B(q') − B(p) at its planar weight)
+        first reads the pixel opposite it through the centre, where that pixel has the
+        centre's key and lies within the sample's depth tolerance of the centre
+        (B(q') − B(p) at its planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     use_obj : bool, the texels' slot carries the object (``slot + K·object``):
         a sample on another object is rejected (or, within ``touch·r`` of the
