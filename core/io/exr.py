@@ -41,9 +41,12 @@ from .sidecar import DEFAULT_VIEW_LAYER, make_sidecar, read_sidecar
 __all__ = [
     "BACKGROUND_DEPTH_WRITTEN",
     "REQUIRED_PASSES",
+    "THIN_PIXEL_SHARE",
+    "THIN_POINT_AOV",
     "list_frames",
     "motion_from_vector",
     "quiet_native_stderr",
+    "read_channels",
     "read_combined",
     "read_frame",
     "read_result",
@@ -55,6 +58,9 @@ __all__ = [
 
 #: Depth written for background pixels, as Blender does.
 BACKGROUND_DEPTH_WRITTEN = 1e10
+
+#: Value AOV the pass render writes: 1 at points whose subsurface Cycles renders.
+THIN_POINT_AOV = "cvsss_thin"
 
 # Canonical pass name -> names it has had in Blender's EXR output.
 _PASS_ALIASES: dict[str, tuple[str, ...]] = {
@@ -68,6 +74,7 @@ _PASS_ALIASES: dict[str, tuple[str, ...]] = {
     "Vector": ("Vector",),
     # Value AOV the pass render writes where a material's Subsurface Weight is linked.
     "SSS Weight": ("cvsss_weight",),
+    "Thin Points": (THIN_POINT_AOV,),
 }
 _ALIAS_TO_PASS = {alias: name for name, aliases in _PASS_ALIASES.items() for alias in aliases}
 # Longest first so that "Diffuse Direct" wins over a hypothetical shorter suffix.
@@ -84,7 +91,13 @@ _PASS_CHANNELS: dict[str, tuple[str, ...]] = {
     "Object Index": ("X",),
     "Vector": ("X", "Y", "Z", "W"),
     "SSS Weight": ("X",),
+    "Thin Points": ("X",),
 }
+
+#: A pixel at least this share of whose samples were thin points (the pass render's
+#: ``cvsss_thin`` AOV, sss_addon.blender.thin_parts) takes no part: Cycles rendered its
+#: subsurface, and the post leaves it as rendered.
+THIN_PIXEL_SHARE = 0.5
 
 #: Passes read_frame cannot do without (canonical Blender 5 names).
 REQUIRED_PASSES = ("Combined", "Depth", "Diffuse Direct", "Diffuse Color", "Material Index")
@@ -403,7 +416,24 @@ def _check_sizes(path: Path, arrays: Mapping[str, np.ndarray]) -> tuple[int, int
 
 
 # -- public readers ---------------------------------------------------------------------
-def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
+def read_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every channel of an EXR: full name (``ViewLayer.Combined.A``) -> (H, W) float32,
+    top row first. For a caller that reads more of a pass file than :func:`read_frame`
+    does, so the file is decoded once (pass the result to it as ``channels``).
+
+    Raises
+    ------
+    PassError
+        As :func:`read_frame`, for a missing, unreadable, truncated or corrupt file.
+    """
+    return _all_channels(_open_exr(Path(path)))
+
+
+def read_frame(
+    path: str | os.PathLike,
+    number: int | None = None,
+    channels: Mapping[str, np.ndarray] | None = None,
+) -> Frame:
     """Read a Blender pass EXR and its sidecar JSON into a :class:`Frame`.
 
     Parameters
@@ -413,6 +443,9 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
     number : int, optional
         Frame number; defaults to the sidecar's ``frame``, then to the file
         stem when it is numeric (``0012.exr`` -> 12).
+    channels : mapping, optional
+        The file's channels as :func:`read_channels` gave them (the file is then
+        not read again).
 
     Returns
     -------
@@ -425,7 +458,10 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         value AOV ``cvsss_weight`` on the pixels of materials whose sidecar
         entry says ``"weight_linked": true`` (NaN elsewhere), else None;
         ``indirect`` = Diffuse Indirect when present, else None;
-        ``objects`` = Object Index when present, else None. The
+        ``objects`` = Object Index when present, else None. Where the value
+        AOV ``cvsss_thin`` (thin points, whose subsurface Cycles rendered) is at
+        least :data:`THIN_PIXEL_SHARE`, ``material`` is 0: the post leaves those
+        pixels as rendered. The
         frame also gets an attribute ``lighting_passes``: the tuple of passes
         summed into B. float16 channels are read as float32.
 
@@ -442,7 +478,8 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         isinstance(number, bool) or not isinstance(number, int | np.integer)
     ):
         raise TypeError(f"number must be an integer, got {number!r}")
-    channels = _all_channels(_open_exr(path))
+    if channels is None:
+        channels = _all_channels(_open_exr(path))
     sidecar = read_sidecar(path.with_suffix(".json"), exr_path=path)
     layer = _pick_layer(path, channels, sidecar.view_layer)
 
@@ -477,6 +514,11 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
         # material's constant weight) elsewhere.
         on = np.isin(np.rint(np.nan_to_num(arrays["Material Index"])), linked)
         sss_weight = np.where(on, arrays["SSS Weight"], np.nan).astype(np.float32)
+    material = arrays["Material Index"]
+    if "Thin Points" in arrays:
+        # Applied on reading rather than rewritten into the file after the render,
+        # which would write every pass file twice.
+        material = np.where(arrays["Thin Points"] >= THIN_PIXEL_SHARE, 0, material)
 
     if number is None:
         number = sidecar.frame
@@ -493,7 +535,7 @@ def read_frame(path: str | os.PathLike, number: int | None = None) -> Frame:
             albedo=arrays["Diffuse Color"],
             combined=arrays["Combined"],
             depth=arrays["Depth"],
-            material=arrays["Material Index"],
+            material=material,
             camera=cam,
             materials=sidecar.materials,
             motion=motion,

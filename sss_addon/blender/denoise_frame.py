@@ -303,7 +303,13 @@ def read_guides(path: str | os.PathLike, layer: str) -> tuple[np.ndarray | None,
     use_threads()
     with quiet_native_stderr():
         exr = OpenEXR.File(os.fspath(path), separate_channels=True)
-    channels = {key: c.pixels for part in exr.parts for key, c in part.channels.items()}
+    return guides_of(
+        {key: c.pixels for part in exr.parts for key, c in part.channels.items()}, layer
+    )
+
+
+def guides_of(channels: Mapping[str, np.ndarray], layer: str) -> tuple[np.ndarray | None, ...]:
+    """:func:`read_guides` from a pass file's channels (:func:`core.io.exr.read_channels`)."""
     guides = []
     for name, letters in GUIDE_PASSES.items():
         keys = [f"{layer}.{name}.{c}" for c in letters]

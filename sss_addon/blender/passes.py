@@ -44,7 +44,6 @@ from .internal_renders import internal_render
 from .thin_parts import (
     THIN_POINT_AOV,
     CyclesRendersThin,
-    leave_thin_pixels,
     thin_point_nodes,
 )
 
@@ -330,7 +329,7 @@ class PassSetup(SceneSetup):
     thin_points : bool
         Cycles also renders the subsurface of the Random Walk materials' thin
         points (:func:`.thin_parts.thin_point_nodes`), and their pixels take no
-        part (:func:`.thin_parts.leave_thin_pixels`, after the render).
+        part (:func:`core.io.exr.read_frame` reads the AOV that says so).
     """
 
     def __init__(
@@ -703,11 +702,9 @@ def pass_sidecar(
 
 def finish_pass_file(path: Path, scene, view_layer, sidecar: dict, denoise: bool) -> None:
     """What follows Blender's write of a pass EXR: EEVEE's AOV becomes the Material
-    Index pass, Cycles' pixels of thin points take no part, and with ``denoise`` the
-    passes the post reads are denoised."""
+    Index pass, and with ``denoise`` the passes the post reads are denoised. (Cycles'
+    pixels of thin points stay as written: the reader takes them out of the post.)"""
     if scene.render.engine != "CYCLES":
         aov_to_material_index(path, view_layer.name, sidecar["camera"]["clip_end"])
-    elif any(aov.name == THIN_POINT_AOV for aov in view_layer.aovs):
-        leave_thin_pixels(path, view_layer.name)
     if denoise:
         denoise_pass_file(path, view_layer.name, scene.cycles.samples)

@@ -20,8 +20,9 @@ Thin features of thick objects (an ear, a fin, the rim along an edge) are found
 per shading point instead: :func:`thin_point_nodes` gives the material's weight
 back where Ambient Occlusion nodes looking inside meet the part's own surface
 within the same bound (a thin feature) or within a shorter one (the rim along an
-edge, where the walk leaves through the other face), and :func:`leave_thin_pixels`
-takes the pixels made mostly of such points out of the post. Apply on Render,
+edge, where the walk leaves through the other face), and the pass reader
+(:func:`core.io.exr.read_frame`) takes the pixels made mostly of such points out
+of the post. Apply on Render,
 ``cvsss render`` and the farm's pass chunks all follow the setting.
 """
 
@@ -30,13 +31,11 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import bpy
-import numpy as np
 
+from ...core.io.exr import THIN_POINT_AOV
 from . import materials as sss_materials
-from .exr_rewrite import rewrite_exr
 
 #: Parts thinner than this many mean free paths of their Random Walk material are thin:
 #: below it a free slab still loses a tenth of its light, which the post would keep; above
@@ -78,14 +77,12 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     return found
 
 
-#: Value AOV of the points whose subsurface Cycles renders (1) in a pass render.
-THIN_POINT_AOV = "cvsss_thin"
 #: Rays of the Ambient Occlusion node that tells a thin point: few, since a pixel
 #: averages many shading points (its samples), and each costs a ray.
 THIN_POINT_RAYS = 4
 #: A point is thin when fewer than this share of those rays leave the part unhit within
-#: THIN_MEAN_FREE_PATHS mean free paths; a pixel is left to Cycles when at least this
-#: share of its samples were thin points.
+#: THIN_MEAN_FREE_PATHS mean free paths (a pixel is left to Cycles when at least
+#: core.io.exr.THIN_PIXEL_SHARE of its samples were thin points).
 THIN_POINT_SHARE = 0.5
 #: A point is on the rim of an edge when at least half of another node's rays (fewer
 #: than this share unhit) meet the part's own surface within THIN_EDGE_MEAN_FREE_PATHS:
@@ -150,7 +147,7 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
     of a second node's meet it within :data:`THIN_EDGE_MEAN_FREE_PATHS` (the rim
     along an edge): where Cycles' walk reaches surface the camera may not see. There
     the weight is the user's again (its value or its link); elsewhere it stays 0. The
-    value AOV :data:`THIN_POINT_AOV` is 1 at thin points (:func:`leave_thin_pixels`).
+    value AOV :data:`THIN_POINT_AOV` is 1 at thin points (read by :func:`core.io.exr.read_frame`).
     An animated (unlinked) weight keeps there the value it had when the pass render
     was set up: its animation stays muted, as for the points the post renders.
     ``new(tree, node type)`` makes a node the pass render removes afterwards. Random
@@ -190,28 +187,6 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
         out = new(tree, "ShaderNodeOutputAOV")
         out.aov_name = THIN_POINT_AOV
         tree.links.new(thin.outputs["Value"], out.inputs["Value"])
-
-
-def leave_thin_pixels(path: Path, layer: str) -> None:
-    """Rewrite a Cycles pass EXR so pixels mostly of thin points take no part: their
-    Material Index becomes 0 (the post passes Cycles' subsurface there through) and the
-    :data:`THIN_POINT_AOV` part is dropped."""
-    aov = f"{layer}.{THIN_POINT_AOV}"
-    share = {}
-
-    def prepare(parts: dict) -> None:
-        if aov in parts:
-            (share["thin"],) = parts[aov].values()
-
-    def edit(name: str, channels: dict) -> tuple[str, dict] | None:
-        if name == aov:
-            return None
-        if name == f"{layer}.Material Index" and "thin" in share:
-            left = share["thin"] >= THIN_POINT_SHARE
-            channels = {k: np.where(left, 0.0, v).astype(v.dtype) for k, v in channels.items()}
-        return name, channels
-
-    rewrite_exr(path, edit, prepare)
 
 
 @dataclass

@@ -19,14 +19,13 @@ import shutil
 import tempfile
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import bpy
 import numpy as np
-import OpenEXR
 
-from ....core.io.exr import quiet_native_stderr, read_frame, use_threads
+from ....core.io.exr import quiet_native_stderr, read_channels, read_frame
 from ....core.io.sidecar import write_sidecar
 from ....core.methods import METHODS
 from ....core.run import FrameStream, RunSpec
@@ -34,7 +33,7 @@ from ... import precompile
 from .. import materials as sss_materials
 from ..autoexec import warning as skipped_python
 from ..console import StdoutFilter
-from ..denoise_frame import denoise_frame, read_guides
+from ..denoise_frame import denoise_frame, guides_of
 from ..errors import RenderError
 from ..images import show_result
 from ..passes import (
@@ -80,15 +79,12 @@ def log(text: str) -> None:
     print(f"cvsss: {text}", flush=True)
 
 
-def read_alpha(path: Path, layer: str) -> np.ndarray | None:
-    """The Combined alpha of a pass EXR (top row first), or None when it has none."""
-    use_threads()
-    with quiet_native_stderr():
-        exr = OpenEXR.File(str(path), separate_channels=True)
-    for part in exr.parts:
-        for key, channel in part.channels.items():
-            if key in (f"{layer}.Combined.A", "Combined.A"):
-                return np.asarray(channel.pixels, dtype=np.float32)
+def combined_alpha(channels: Mapping[str, np.ndarray], layer: str) -> np.ndarray | None:
+    """The Combined alpha among a pass file's channels (:func:`core.io.exr.read_channels`),
+    (H, W) float32 top row first, or None when it has none."""
+    for key in (f"{layer}.Combined.A", "Combined.A"):
+        if key in channels:
+            return np.asarray(channels[key], dtype=np.float32)
     return None
 
 
@@ -362,7 +358,7 @@ class Session:
                         )
             finally:
                 bpy.data.scenes.remove(copy)
-            frame_passes = self._read(frame, path)
+            frame_passes, _ = self._read(frame, path)
             precompile.ensure_compiled(
                 self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), log
             )
@@ -430,8 +426,10 @@ class Session:
         self.pending.append((frame, path))
 
     def _read(self, frame: int, path: Path):
+        """The frame's passes and every channel of its file (read once)."""
         with quiet_native_stderr():
-            return read_frame(path, number=frame)
+            channels = read_channels(path)
+            return read_frame(path, number=frame, channels=channels), channels
 
     def process_next(self) -> str:
         """Post-process the oldest queued pass file; the progress line."""
@@ -442,19 +440,19 @@ class Session:
             finish_pass_file(
                 path, self.scene, self.job.view_layer, sidecar, self.job.denoise_passes
             )
-        passes = self._read(frame, path)
+        passes, channels = self._read(frame, path)
         precompile.ensure_compiled(
             self.job.params.backend, self.job.methods, math.prod(passes.shape), log
         )
         result = self.stream.step(passes)[self.method]
-        alpha = read_alpha(path, self.job.view_layer.name)
+        alpha = combined_alpha(channels, self.job.view_layer.name)
         rgba = np.empty((*result.composite.shape[:2], 4), np.float32)
         rgba[..., :3] = result.composite
         rgba[..., 3] = 1.0 if alpha is None else alpha
         noisy = None
         if self.denoise is not None:
             noisy = rgba
-            guides = read_guides(path, self.job.view_layer.name)
+            guides = guides_of(channels, self.job.view_layer.name)
             rgba = denoise_frame(noisy, *guides, self.denoise, result.mask)
         self.last, self.last_noisy = rgba, noisy
         self.paths[frame] = path
