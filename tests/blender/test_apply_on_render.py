@@ -525,6 +525,30 @@ def test_frame_by_frame_renders_continue_the_history(scene, tmp_path):
         np.testing.assert_array_equal(single, pixels)
 
 
+def test_a_delivered_frames_temporary_files_are_gone(scene, tmp_path):
+    """Once a frame is written, its pass file, sidecar and finished frame leave the
+    temporary folder (a warm-up frame's once the history has it): a long animation does
+    not keep every frame's passes on disk until it ends."""
+    _warm_up(scene, 1)
+    seen = {}
+
+    def look(_scene, _depsgraph=None):  # runs after the add-on's render_write handler
+        if _scene != scene:
+            return  # the warm-up frame's render, of a copy of the scene
+        session = active_session()
+        seen[_scene.frame_current] = sorted(
+            p.name for folder in (session.passes, session.final) for p in folder.iterdir()
+        )
+
+    bpy.app.handlers.render_write.append(look)
+    try:
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    finally:
+        bpy.app.handlers.render_write.remove(look)
+    assert seen == {1: [], 2: [], 3: []}
+    assert all(p.is_file() for p in _frame_paths(scene).values())
+
+
 def test_overwrite_off_and_placeholders_as_blender(scene, tmp_path):
     scene.render.use_overwrite = False
     scene.render.use_placeholder = True

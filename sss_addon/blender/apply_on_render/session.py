@@ -363,6 +363,9 @@ class Session:
                 self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), log
             )
             self.stream.warm_up(frame_passes)
+            for name in (path, path.with_suffix(".json")):  # the history holds what it needs
+                with contextlib.suppress(OSError):
+                    name.unlink(missing_ok=True)
             text = (
                 f"warm-up frame {frame} ({index}/{len(frames)}): passes and post "
                 f"{time.perf_counter() - began:.2f} s"
@@ -504,6 +507,7 @@ class Session:
         out = self.output
         path = out.render.frame_path(frame=frame)
         if frame in self.skip or (self.deferred and not self.overwrite and Path(path).exists()):
+            self._done_with(frame)
             return f"{path} exists, kept (Overwrite is off)"
         out.frame_start = out.frame_end = frame
         with self._delivering(out, self._finished):
@@ -512,7 +516,20 @@ class Session:
         self.delivered.append((frame, path))
         with contextlib.suppress(ValueError):
             self.placeholders.remove(Path(path))
+        self._done_with(frame)
         return f"-> {path}"
+
+    def _done_with(self, frame: int) -> None:
+        """Remove the temporary files of a delivered frame (its pass file and sidecar, its
+        finished frame), so a long animation's temporary folder holds a few frames' files,
+        not all of them, until the render ends."""
+        path = self.paths.pop(frame, None)
+        files = [self.final / f"{frame}.npy", self.final / f"{frame}.noisy.npy"]
+        if path is not None:
+            files += [path, path.with_suffix(".json")]
+        for name in files:
+            with contextlib.suppress(OSError):
+                name.unlink(missing_ok=True)
 
     def encode(self) -> str:
         """Encode the finished frames into the user's movie with Blender's own writer."""
