@@ -284,8 +284,10 @@ def describe(report: dict) -> str:
     frames = report["frames"]
     return (
         f"Frames {frames[0]}-{frames[-1]} at {width}x{height}. Ground truth: Cycles, "
-        f"{report['ground_truth']['samples']} spp, each material's own subsurface method "
-        f"(the materials': {report['materials_method']}), denoising off, seed "
+        f"{report['ground_truth']['samples']} spp, with the subsurface method the row's "
+        f"materials have (their own: {report['materials_method']}; a Random Walk or "
+        "Christensen-Burley row switches every Principled BSDF, ground truth included), "
+        "denoising off, seed "
         f"{report['ground_truth']['seed']}. Apply on Render: {aor['method']}, warm-up "
         f"{aor['warmup_frames']} frame(s) before an animation"
         f"{'; on EEVEE its subsurface pixels denoised' if aor.get('denoise_subsurface') else ''}"
