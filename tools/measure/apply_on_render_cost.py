@@ -20,12 +20,18 @@ steps; the rest is Blender's pass render). From the repository root::
     python tools/measure/apply_on_render_cost.py --size 128x72 --spp 64 --method as_ccv_t
     python tools/measure/apply_on_render_cost.py --compositor --multilayer
     python tools/measure/apply_on_render_cost.py --size 1280x720 --frames 4 --json out.json
+    python tools/measure/apply_on_render_cost.py --blend out/users/boids.blend \
+        --first-frame 21 --method-variant RANDOM_WALK --rounds 5
 
 (``make bench`` runs it at 640×360 and 1280×720 and keeps the JSON beside the
 bench's results: issue 46's Apply on Render cost.)
 
 (``--compositor``: a compositor of a few nodes reading a pass; ``--multilayer``: a
-multilayer EXR of a few passes, Cryptomatte among them, instead of PNG.)
+multilayer EXR of a few passes, Cryptomatte among them, instead of PNG; ``--blend``:
+a saved scene instead of the built one, e.g. one of
+``tools/measure/users_frame_scenes.py``, rendered at ``--size`` and ``--spp`` with
+Cycles' denoiser on, from ``--first-frame``; ``--method-variant``: every Principled
+BSDF switched to that subsurface method, as ``cvsss compare --method-variants`` does.)
 
 (``python`` with ``bpy`` 5.0 and the ``cvsss`` package importable.)
 """
@@ -50,6 +56,7 @@ from scene import build_scene
 
 import cvsss
 from cvsss.sss_addon.blender.apply_on_render import session as aor_session
+from cvsss.sss_addon.blender.users_frame import MethodSwitch
 
 #: Seconds spent in the add-on's steps of the render being timed (name -> total).
 SPENT: collections.Counter = collections.Counter()
@@ -130,10 +137,24 @@ def main() -> None:
         "passes (instead of PNG)",
     )
     parser.add_argument("--json", type=Path, help="also write the medians and runs here")
+    parser.add_argument("--blend", type=Path, help="render this .blend's scene (never saved)")
+    parser.add_argument(
+        "--first-frame", type=int, default=None, help="with --blend: the first frame rendered"
+    )
+    parser.add_argument(
+        "--method-variant",
+        choices=("RANDOM_WALK", "BURLEY", "RANDOM_WALK_SKIN"),
+        help="every Principled BSDF switched to this subsurface method",
+    )
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
-    scene = build_scene(width, height, args.spp, args.frames)
+    if args.blend is None:
+        scene = build_scene(width, height, args.spp, args.frames)
+    else:
+        scene = open_scene(args.blend, width, height, args.spp, args.frames, args.first_frame)
     cvsss.register()
+    if args.method_variant:
+        switch_methods(args.method_variant)
     settings = scene.sss_settings
     settings.method = args.method
     if args.warmup is not None:
@@ -160,6 +181,10 @@ def main() -> None:
                         spent[name].append(SPENT.copy())
     frames = args.frames
     extras = [name for name in ("compositor", "multilayer") if getattr(args, name)]
+    if args.blend is not None:
+        extras.append(f"{args.blend.name} from frame {scene.frame_start}")
+    if args.method_variant:
+        extras.append(f"every Principled BSDF {args.method_variant}")
     print(
         f"{width}x{height}, {args.spp} spp, {args.method}, Warm-up Frames "
         f"{settings.warmup_frames}{''.join(', ' + e for e in extras)}; medians of "
@@ -205,6 +230,29 @@ def main() -> None:
         temporary = args.json.with_name(args.json.name + ".tmp")
         temporary.write_text(json.dumps(summary, indent=1) + "\n")
         os.replace(temporary, args.json)
+
+
+def open_scene(path: Path, width: int, height: int, spp: int, frames: int, first: int | None):
+    """The scene of the .blend at ``path``: ``width``×``height``, ``spp`` samples with
+    Cycles' denoiser, ``frames`` frames from ``first`` (default: its own first frame)."""
+    if not path.is_file():
+        raise SystemExit(f"error: no such .blend: {path}")
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    scene.cycles.samples = spp
+    scene.cycles.use_denoising = True
+    if first is not None:
+        scene.frame_start = first
+    scene.frame_end = scene.frame_start + frames - 1
+    return scene
+
+
+def switch_methods(method: str) -> None:
+    """Every Principled BSDF of the file (in node groups too) uses the subsurface ``method``."""
+    MethodSwitch(bpy.data.materials, method).__enter__()  # the file is never saved
 
 
 def multilayer(scene) -> None:
