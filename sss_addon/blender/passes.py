@@ -7,7 +7,8 @@ restores every value on exit, also on error and on cancel. Nothing here saves
 the .blend.
 
 Passes enabled on the rendered view layer: Combined, Depth (``use_pass_z``),
-Material Index, Object Index, Vector (motion blur off), Diffuse Direct /
+Material Index, Object Index, Vector (motion blur off; left out where no
+method reprojects estimates, see :class:`PassSetup`), Diffuse Direct /
 Indirect / Color and optionally Normal; every other pass is switched off.
 Denoising, compositing and the sequencer are off; output is a 32-bit
 multilayer EXR. For the render, the scene's objects are numbered (their Pass
@@ -330,6 +331,12 @@ class PassSetup(SceneSetup):
         Cycles also renders the subsurface of the Random Walk materials' thin
         points (:func:`.thin_parts.thin_point_nodes`), and their pixels take no
         part (:func:`core.io.exr.read_frame` reads the AOV that says so).
+    motion : bool
+        Render the Vector pass (default). Only the temporal methods need it: they
+        reuse last frame's estimates, which must be moved with the surface. The
+        other methods' history only steers how many samples a pixel takes, which
+        changes the noise, and the engine pays for the pass by evaluating the scene
+        at the neighbouring frames as well.
     """
 
     def __init__(
@@ -343,8 +350,10 @@ class PassSetup(SceneSetup):
         guides: bool = False,
         thin=(),
         thin_points: bool = False,
+        motion: bool = True,
     ) -> None:
         super().__init__(scene, view_layer)
+        self.motion = motion
         self.materials = list(materials)
         self.engine = engine_identifier(scene, engine)
         self.normal = normal
@@ -385,8 +394,9 @@ class PassSetup(SceneSetup):
         self._output_exr()
         if getattr(scene, "cycles", None) is not None:
             scene.cycles.use_denoising = False
+        needed = set(NEEDED_PASSES) - (set() if self.motion else {"use_pass_vector"})
         self._only_layer(
-            lambda ident: ident in NEEDED_PASSES or (self.normal and ident == "use_pass_normal")
+            lambda ident: ident in needed or (self.normal and ident == "use_pass_normal")
         )
         # Cycles' guide passes: another engine writes none (EEVEE's finished frames are
         # denoised without guides, denoise_frame.EEVEE_DENOISE).

@@ -549,6 +549,39 @@ def test_a_delivered_frames_temporary_files_are_gone(scene, tmp_path):
     assert all(p.is_file() for p in _frame_paths(scene).values())
 
 
+def test_the_vector_pass_is_rendered_for_temporal_methods_only(scene, tmp_path):
+    """Only a temporal method moves last frame's estimates along the motion vectors;
+    for the others the pass render leaves the Vector pass out (the engine evaluates the
+    scene at the neighbouring frames for it). The user's own Vector pass stays where a
+    multilayer file (or a compositor) takes the view layer's passes."""
+    layer = scene.view_layers[0]
+    seen = {}
+
+    def look(_scene, _depsgraph=None):  # runs after the add-on's render_pre handler
+        if _scene == scene:
+            seen.setdefault(scene.sss_settings.method, set()).add(layer.use_pass_vector)
+
+    layer.use_pass_vector = False
+    bpy.app.handlers.render_pre.append(look)
+    try:
+        for method in ("as_ccv", "as_ccv_t", "fixed"):
+            scene.sss_settings.method = method
+            scene.render.filepath = str(tmp_path / method / "f_")
+            assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+        layer.use_pass_vector = True  # the user's, for the multilayer file
+        settings = scene.render.image_settings
+        settings.media_type = "MULTI_LAYER_IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+        scene.sss_settings.method = "as_ccv"
+        scene.render.filepath = str(tmp_path / "user" / "f_")
+        seen.pop("as_ccv")
+        assert bpy.ops.render.render(animation=True) == {"FINISHED"}
+    finally:
+        bpy.app.handlers.render_pre.remove(look)
+    assert seen == {"as_ccv_t": {True}, "fixed": {False}, "as_ccv": {True}}
+    assert layer.use_pass_vector  # the user's setting back
+
+
 def test_overwrite_off_and_placeholders_as_blender(scene, tmp_path):
     scene.render.use_overwrite = False
     scene.render.use_placeholder = True

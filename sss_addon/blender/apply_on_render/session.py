@@ -251,6 +251,8 @@ class Session:
             guides=self.denoise is not None,
             thin=self.job.thin,
             thin_points=self.job.thin_points,
+            # Its one method: the Vector pass only where it reprojects estimates.
+            motion=bool(METHODS[self.method].temporal),
         ).__enter__()
         r = self.scene.render
         r.filepath = str(self.passes / "pass_")

@@ -115,7 +115,7 @@ class KeepingPassSetup(PassSetup):
 
     Parameters
     ----------
-    scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points
+    scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points, motion
         As :class:`.passes.PassSetup`.
     user : UserRender or None
         Its pass switches stay on (None: only the add-on's passes).
@@ -133,9 +133,10 @@ class KeepingPassSetup(PassSetup):
         guides: bool = False,
         thin=(),
         thin_points: bool = False,
+        motion: bool = True,
     ) -> None:
         super().__init__(
-            scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points
+            scene, materials, view_layer, engine, normal, denoise, guides, thin, thin_points, motion
         )
         self.user = user
 
