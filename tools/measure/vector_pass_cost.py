@@ -1,14 +1,18 @@
 """What the Vector pass costs a Cycles render of a scene whose geometry is evaluated
-per frame (a subdivided, wave-deformed Suzanne): with the pass, the engine also
-evaluates the scene at the neighbouring frames for the motion.
+per frame (a subdivided, wave-deformed Suzanne with a Random Walk skin): with the
+pass, the engine also evaluates the scene at the neighbouring frames for the motion.
 
 Apply on Render renders the Vector pass for the temporal methods only
 (``sss_addon.blender.passes.PassSetup``, ``motion``). From the repository root::
 
-    python tools/measure/vector_pass_cost.py --size 128x72 --rounds 2
+    python tools/measure/vector_pass_cost.py --size 128x72 --rounds 3
+    python tools/measure/vector_pass_cost.py --save out/deformed.blend
+    python tools/measure/apply_on_render_cost.py --blend out/deformed.blend \
+        --first-frame 1 --rounds 3
 
 (``python`` with ``bpy`` 5.0 importable.) It prints the seconds of each render of
-frames 1–3, pass off and on in turn.
+frames 1–3, pass off and on in turn; with ``--save`` it writes the scene (frames
+1–8) instead, for ``apply_on_render_cost.py``.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ import bpy
 
 
 def build(width: int, height: int, samples: int):
-    """The scene: Suzanne, Subdivision 4 and Wave modifiers, a sun, a camera."""
+    """The scene: Suzanne (Subdivision 4 and Wave modifiers, Random Walk subsurface),
+    a sun, a camera; frames 1–8."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -34,6 +39,15 @@ def build(width: int, height: int, samples: int):
     subdivision = suzanne.modifiers.new("subdivision", "SUBSURF")
     subdivision.levels = subdivision.render_levels = 4
     suzanne.modifiers.new("wave", "WAVE")
+    skin = bpy.data.materials.new("skin")
+    skin.use_nodes = True
+    principled = skin.node_tree.nodes["Principled BSDF"]
+    principled.inputs["Base Color"].default_value = (0.8, 0.5, 0.4, 1.0)
+    principled.inputs["Subsurface Weight"].default_value = 1.0
+    principled.inputs["Subsurface Radius"].default_value = (1.0, 0.5, 0.25)
+    principled.inputs["Subsurface Scale"].default_value = 0.05
+    suzanne.data.materials.append(skin)
+    scene.frame_start, scene.frame_end = 1, 8
     camera = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     scene.collection.objects.link(camera)
     scene.camera = camera
@@ -48,10 +62,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", default="128x72", help="WxH pixels (default 128x72)")
     parser.add_argument("--samples", type=int, default=16, help="Cycles samples (default 16)")
-    parser.add_argument("--rounds", type=int, default=2, help="rounds of off / on (default 2)")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of off / on (default 3)")
+    parser.add_argument("--save", help="write the scene to this .blend instead of timing it")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     scene = build(width, height, args.samples)
+    if args.save:
+        bpy.ops.wm.save_as_mainfile(filepath=bpy.path.abspath(args.save))
+        return
     layer = scene.view_layers[0]
     folder = tempfile.mkdtemp(prefix="cvsss-vector-")
     times: dict[bool, list[float]] = {False: [], True: []}
