@@ -56,7 +56,7 @@ import numpy as np
 import OpenEXR
 
 from ...core.io.errors import OutputError
-from ...core.io.exr import quiet_native_stderr, use_threads
+from ...core.io.exr import quiet_native_stderr, read_channels
 from .denoise import denoised_file_output, tree_copy
 from .errors import RenderError
 from .internal_renders import internal_render
@@ -300,12 +300,8 @@ GUIDE_PASSES = {"Denoising Albedo": "RGB", "Denoising Normal": "XYZ"}
 def read_guides(path: str | os.PathLike, layer: str) -> tuple[np.ndarray | None, ...]:
     """(albedo, normal) of view layer ``layer`` in a pass EXR: (H, W, 3) float32 each, top
     row first, None for one the file lacks."""
-    use_threads()
     with quiet_native_stderr():
-        exr = OpenEXR.File(os.fspath(path), separate_channels=True)
-    return guides_of(
-        {key: c.pixels for part in exr.parts for key, c in part.channels.items()}, layer
-    )
+        return guides_of(read_channels(path), layer)
 
 
 def guides_of(channels: Mapping[str, np.ndarray], layer: str) -> tuple[np.ndarray | None, ...]:

@@ -88,6 +88,14 @@ def combined_alpha(channels: Mapping[str, np.ndarray], layer: str) -> np.ndarray
     return None
 
 
+def _remove(*files: Path) -> None:
+    """Remove temporary files, those that exist (a file that cannot go stays until the
+    session's folder is removed)."""
+    for name in files:
+        with contextlib.suppress(OSError):
+            name.unlink(missing_ok=True)
+
+
 #: The history of the last render in background mode, continued by a render of the next frame.
 _last_stream: tuple[str, FrameStream] | None = None
 #: The render in progress or waiting for :meth:`Session.finish_steps` (one at a time).
@@ -365,9 +373,7 @@ class Session:
                 self.job.params.backend, self.job.methods, math.prod(frame_passes.shape), log
             )
             self.stream.warm_up(frame_passes)
-            for name in (path, path.with_suffix(".json")):  # the history holds what it needs
-                with contextlib.suppress(OSError):
-                    name.unlink(missing_ok=True)
+            _remove(path, path.with_suffix(".json"))  # the history holds what it needs
             text = (
                 f"warm-up frame {frame} ({index}/{len(frames)}): passes and post "
                 f"{time.perf_counter() - began:.2f} s"
@@ -526,12 +532,9 @@ class Session:
         finished frame), so a long animation's temporary folder holds a few frames' files,
         not all of them, until the render ends."""
         path = self.paths.pop(frame, None)
-        files = [self.final / f"{frame}.npy", self.final / f"{frame}.noisy.npy"]
+        _remove(self.final / f"{frame}.npy", self.final / f"{frame}.noisy.npy")
         if path is not None:
-            files += [path, path.with_suffix(".json")]
-        for name in files:
-            with contextlib.suppress(OSError):
-                name.unlink(missing_ok=True)
+            _remove(path, path.with_suffix(".json"))
 
     def encode(self) -> str:
         """Encode the finished frames into the user's movie with Blender's own writer."""
