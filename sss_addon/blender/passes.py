@@ -45,6 +45,7 @@ from .internal_renders import internal_render
 from .thin_parts import (
     THIN_POINT_AOV,
     CyclesRendersThin,
+    Thickness,
     thin_point_nodes,
 )
 
@@ -367,6 +368,7 @@ class PassSetup(SceneSetup):
         self._cover_aov = None
         self._weight_aov = None
         self._thin_aov = None
+        self._thickness: Thickness | None = None
         self.thin_points = thin_points
         self._aov_nodes: list[tuple[object, str]] = []
         self._thin = CyclesRendersThin(thin)
@@ -437,6 +439,7 @@ class PassSetup(SceneSetup):
     def _add_thin_points(self) -> None:
         """The value AOV of thin points, and the nodes that keep their subsurface on."""
         self._layer_aov(THIN_POINT_AOV, "_thin_aov", "VALUE")
+        self._thickness = Thickness(self.materials).__enter__()
         for material in self.materials:
             thin_point_nodes(material, self._new_node)
 
@@ -498,6 +501,9 @@ class PassSetup(SceneSetup):
             if aov is not None:
                 self.view_layer.aovs.remove(aov)
                 setattr(self, name, None)
+        if self._thickness is not None:
+            self._thickness.restore()
+            self._thickness = None
         if self._sss is not None:
             self._sss.restore()
             self._sss = None

@@ -19,8 +19,9 @@ afterwards, also on error.
 Thin features of thick objects (an ear, a fin, the rim along an edge) are found
 per shading point instead: :func:`thin_point_nodes` gives the material's weight
 back where Ambient Occlusion nodes looking inside meet the part's own surface
-within the same bound (a thin feature) or within a shorter one (the rim along an
-edge, where the walk leaves through the other face), and the pass reader
+within the same bound (a thin feature) or within a shorter one, which grows with the
+object's thickness (the rim along an edge, where the walk leaves through the other
+face), and the pass reader
 (:func:`core.io.exr.read_frame`) takes the pixels made mostly of such points out
 of the post. Apply on Render,
 ``cvsss render`` and the farm's pass chunks all follow the setting.
@@ -85,13 +86,23 @@ THIN_POINT_RAYS = 4
 #: core.io.exr.THIN_PIXEL_SHARE of its samples were thin points).
 THIN_POINT_SHARE = 0.5
 #: A point is on the rim of an edge when at least half of another node's rays (fewer
-#: than this share unhit) meet the part's own surface within THIN_EDGE_MEAN_FREE_PATHS:
-#: at a right-angled edge half of them head for the other face. Two, because with it the
-#: rims of the demo's marble block (20 mean free paths across) went to Cycles and came
-#: out closer to the ground truth, while with three or four more of the candles' wax
-#: (about six across) went too and came out further (docs/explanation/accuracy.md §2.3).
+#: than this share unhit) meet the part's own surface within a bound: at a right-angled
+#: edge half of them head for the other face, and the longer the bound the wider the band
+#: along the edge that has them meet it. THIN_EDGE_MEAN_FREE_PATHS is the bound's least;
+#: for a thick part it is THIN_EDGE_MAX_MEAN_FREE_PATHS, for a thinner one
+#: THIN_EDGE_THICKNESS_SHARE of the part's thickness (its smallest dimension): beyond
+#: about two-thirds of it most points of a slab have half their rays meet its far side,
+#: so the whole part would be rim. The rims of the demo's marble block (20 mean free paths
+#: across, its hidden top lit) came out closer to the ground truth from Cycles the wider
+#: they were, while the candles' wax (about six across) came out further once more of it
+#: went to Cycles (docs/explanation/accuracy.md §2.3).
 THIN_EDGE_MEAN_FREE_PATHS = 2.0
+THIN_EDGE_MAX_MEAN_FREE_PATHS = 8.0
+THIN_EDGE_THICKNESS_SHARE = 0.4
 THIN_EDGE_SHARE = 0.75
+#: The object property (scene units) through which the rim's nodes read each object's
+#: thickness: set by :class:`Thickness` for the pass render only.
+THICKNESS_PROPERTY = "cvsss_thickness"
 
 
 def has_walks(materials) -> bool:
@@ -108,6 +119,8 @@ def record(objects: list[str], points: bool) -> dict:
         "points": bool(points),
         "mean_free_paths": THIN_MEAN_FREE_PATHS,
         "edge_mean_free_paths": THIN_EDGE_MEAN_FREE_PATHS,
+        "edge_max_mean_free_paths": THIN_EDGE_MAX_MEAN_FREE_PATHS,
+        "edge_thickness_share": THIN_EDGE_THICKNESS_SHARE,
     }
 
 
@@ -144,8 +157,12 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
     A point is thin when most inward rays of an Ambient Occlusion node (Inside,
     Only Local, :data:`THIN_POINT_RAYS` rays) meet the part's own surface within
     :data:`THIN_MEAN_FREE_PATHS` mean free paths (an ear, a fin), or at least half
-    of a second node's meet it within :data:`THIN_EDGE_MEAN_FREE_PATHS` (the rim
-    along an edge): where Cycles' walk reaches surface the camera may not see. There
+    of a second node's meet it within the rim's bound (the rim along an edge):
+    :data:`THIN_EDGE_THICKNESS_SHARE` of the object's thickness (the property
+    :data:`THICKNESS_PROPERTY`, :class:`Thickness`), kept between
+    :data:`THIN_EDGE_MEAN_FREE_PATHS` and :data:`THIN_EDGE_MAX_MEAN_FREE_PATHS` mean
+    free paths (the least on an object without the property, a linked one): where
+    Cycles' walk reaches surface the camera may not see. There
     the weight is the user's again (its value or its link); elsewhere it stays 0. The
     value AOV :data:`THIN_POINT_AOV` is 1 at thin points (read by :func:`core.io.exr.read_frame`).
     An animated (unlinked) weight keeps there the value it had when the pass render
@@ -171,6 +188,8 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
             ao.only_local = True
             ao.samples = THIN_POINT_RAYS
             ao.inputs["Distance"].default_value = paths * ell
+            if i == 1:
+                _rim_bound(tree, ao.inputs["Distance"], ell, new)
             hit = new(tree, "ShaderNodeMath")
             hit.operation = "LESS_THAN"
             tree.links.new(ao.outputs["AO"], hit.inputs[0])
@@ -187,6 +206,70 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
         out = new(tree, "ShaderNodeOutputAOV")
         out.aov_name = THIN_POINT_AOV
         tree.links.new(thin.outputs["Value"], out.inputs["Value"])
+
+
+def _rim_bound(tree, distance, ell: float, new: Callable[[object, str], object]) -> None:
+    """Feed ``distance`` (an Ambient Occlusion node's input) the rim's bound for a
+    material of mean free path ``ell``: the object's thickness times
+    :data:`THIN_EDGE_THICKNESS_SHARE`, clamped to the bounds in mean free paths."""
+    thickness = new(tree, "ShaderNodeAttribute")
+    thickness.attribute_type = "OBJECT"
+    thickness.attribute_name = THICKNESS_PROPERTY
+    bound = thickness.outputs["Fac"]
+    for operation, value in (
+        ("MULTIPLY", THIN_EDGE_THICKNESS_SHARE),
+        ("MINIMUM", THIN_EDGE_MAX_MEAN_FREE_PATHS * ell),
+        ("MAXIMUM", THIN_EDGE_MEAN_FREE_PATHS * ell),
+    ):
+        node = new(tree, "ShaderNodeMath")
+        node.operation = operation
+        tree.links.new(bound, node.inputs[0])
+        node.inputs[1].default_value = value
+        bound = node.outputs["Value"]
+    tree.links.new(bound, distance)
+
+
+class Thickness(contextlib.AbstractContextManager):
+    """Give each editable mesh object carrying one of ``materials`` its thickness (its
+    smallest dimension, scene units) as the property :data:`THICKNESS_PROPERTY`, which
+    :func:`thin_point_nodes` reads; :meth:`restore` puts back what was there (nothing,
+    usually), also on error."""
+
+    _NONE = object()
+
+    def __init__(self, materials) -> None:
+        self.materials = set(materials)
+        self._saved: dict[str, object] = {}
+
+    def __enter__(self) -> Thickness:
+        try:
+            for obj in bpy.data.objects:
+                if (
+                    obj.type == "MESH"
+                    and obj.is_editable
+                    and any(s.material in self.materials for s in obj.material_slots)
+                ):
+                    self._saved[obj.name] = obj.get(THICKNESS_PROPERTY, self._NONE)
+                    obj[THICKNESS_PROPERTY] = float(min(obj.dimensions))
+        except BaseException:
+            self.restore()
+            raise
+        return self
+
+    def restore(self) -> None:
+        """Put the objects' property back (safe to call more than once)."""
+        for name, value in self._saved.items():
+            obj = bpy.data.objects.get(name)
+            if obj is None:
+                continue
+            if value is self._NONE:
+                obj.pop(THICKNESS_PROPERTY, None)
+            else:
+                obj[THICKNESS_PROPERTY] = value
+        self._saved = {}
+
+    def __exit__(self, *exc) -> None:
+        self.restore()
 
 
 @dataclass

@@ -183,8 +183,8 @@ def _tree(tree, prefix: str, out: dict, seen: set) -> None:
 
 def scene_state(scene) -> dict:
     """Everything the pass render may touch: materials (every node input, links with
-    their mute flag, texture nodes' images, pass index), object pass indices and material
-    slots, node groups, view layers (pass flags), render/image/Cycles
+    their mute flag, texture nodes' images, pass index), object pass indices, material
+    slots and the add-on's properties (``cvsss…``), node groups, view layers (pass flags), render/image/Cycles
     settings, the compositor's node group (nodes, links, what its Render Layers read),
     frame."""
     import bpy
@@ -195,6 +195,9 @@ def scene_state(scene) -> dict:
         _tree(material.node_tree, f"mat:{material.name}", out, set())
     for obj in bpy.data.objects:
         out[f"obj:{obj.name}.pass_index"] = obj.pass_index
+        out[f"obj:{obj.name}.props"] = {
+            key: repr(obj[key]) for key in obj.keys() if key.startswith("cvsss")
+        }
         out[f"obj:{obj.name}.slots"] = [
             (slot.link, slot.material.name if slot.material else None)
             for slot in obj.material_slots

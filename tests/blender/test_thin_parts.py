@@ -116,6 +116,8 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
         "points": True,
         "mean_free_paths": 5.0,
         "edge_mean_free_paths": 2.0,
+        "edge_max_mean_free_paths": 8.0,
+        "edge_thickness_share": 0.4,
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
@@ -207,7 +209,8 @@ def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
     """A 2-m cube of a material with a 20-cm mean free path (ten across: not thin)
     faces the camera. At a right-angled edge half the inward directions head for the
     other face, so a point within a fraction of a mean free path of the edge has at
-    least half its rays meet it within two: the pixel column along each side edge,
+    least half its rays meet it within the rims' bound (here 0.4 of the cube's
+    thickness: four mean free paths): the pixel column along each side edge,
     a quarter of a mean free path wide, is left to Cycles (Material Index 0) for most
     of its pixels, while the face's middle, over three mean free paths from any edge,
     is not."""
@@ -222,6 +225,49 @@ def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
     rims = frame.material[4:16, [6, 45]]
     assert (rims == 0).sum() >= 2 * rims.size // 3, rims
     assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
+
+
+def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
+    """A 2-m cube of a material with a 10-cm mean free path (20 across) faces the
+    camera. Its rims' bound is eight mean free paths (not two, the bound of a part
+    five across: see the next test), and with it a point up to about a mean free path
+    and a half from an edge has at least half its rays meet the other face: of the four
+    pixel columns along each side edge (two mean free paths) most pixels are left to
+    Cycles (with a bound of two, a point beyond half a mean free path seldom is: about
+    a fifth of these pixels would be). The face's middle, over three mean free paths
+    from any edge, takes part. A cube that already had the property, with another
+    value, has it back afterwards."""
+    verts, faces = [], []
+    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
+    mesh = bpy.data.meshes.new("cube")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(_walk("walk", mean_free_path=0.1))
+    cube = bpy.data.objects.new("cube", mesh)
+    cube[thin_parts.THICKNESS_PROPERTY] = "the user's"
+    fresh.collection.objects.link(cube)
+    frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
+    # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
+    rims = frame.material[4:16, [6, 7, 8, 9, 42, 43, 44, 45]]
+    assert (rims == 0).sum() >= rims.size // 2, rims
+    assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
+    assert cube[thin_parts.THICKNESS_PROPERTY] == "the user's"
+
+
+def test_a_part_a_few_mean_free_paths_thick_is_no_rim_inside(fresh, tmp_path, snapshot):
+    """A slab 60 cm deep (six mean free paths of 10 cm: not thin) faces the camera.
+    With the thick part's bound of eight mean free paths, its far side is within it
+    for 44 % of the inward rays (cos θ > 6/8), so about half the face's pixels would
+    have half their rays meet it and go to Cycles; the bound is 0.4 of the slab's
+    thickness instead (2.4 mean free paths), which the far side is beyond for every
+    ray: the face's middle takes part."""
+    verts, faces = [], []
+    _box(verts, -1.0, 1.0, 0.0, 0.6, -1.0, 1.0, faces)  # its face at y = 0, 0.6 m deep
+    mesh = bpy.data.meshes.new("slab")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(_walk("walk", mean_free_path=0.1))
+    fresh.collection.objects.link(bpy.data.objects.new("slab", mesh))
+    frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
+    assert (frame.material[4:16, 16:36] == 1).all(), frame.material[4:16]
 
 
 def test_no_walk_no_thin_parts(fresh):
