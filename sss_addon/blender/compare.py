@@ -291,7 +291,7 @@ def describe(report: dict) -> str:
         f"{report['ground_truth']['seed']}. Apply on Render: {aor['method']}, warm-up "
         f"{aor['warmup_frames']} frame(s) before an animation"
         f"{'; on EEVEE its subsurface pixels denoised' if aor.get('denoise_subsurface') else ''}"
-        f"{'; thin Random Walk parts left to Cycles' if aor.get('thin_walks') == 'CYCLES' else ''}"
+        f"{'; thin parts left to Cycles' if aor.get('thin_walks') == 'CYCLES' else ''}"
         ". PSNR in display space (exposure 1/p99 of the "
         "ground truth's brightest channel, sRGB, clipped); subsurface pixels: the ground truth "
         "with and without subsurface differ by more than 1 % of its peak; effect: the change "

@@ -197,16 +197,15 @@ def param_properties() -> dict[str, tuple]:
     return out
 
 
-#: ``thin_walks``: who renders the subsurface of parts thin for their Random Walk material
-#: (apply_on_render.thin_parts).
+#: ``thin_walks``: who renders the subsurface of thin parts (sss_addon/blender/thin_parts.py).
 THIN_WALKS = (
     (
         "CYCLES",
         "Cycles",
         "Cycles renders the subsurface of objects thinner than 5 mean free paths of their "
-        "Random Walk material, and of points within 5 mean free paths of their own far side "
-        "(ears, fins, edges), as in a plain render: its walk loses or gains light through "
-        "the far side, which screen space cannot see. Cycles passes only",
+        "Random Walk material, and of points near their own far side or an edge (ears, fins, "
+        "rims) of Random Walk and Christensen-Burley materials, as in a plain render: its "
+        "walk and its disk probes reach surface screen space cannot see. Cycles passes only",
     ),
     (
         "POST",
@@ -329,10 +328,11 @@ class SSSSettings(PropertyGroup):
         default=False,
     )
     thin_walks: EnumProperty(
-        name="Thin Random Walk Parts",
+        name="Thin Parts",
         description=(
-            "Who renders the subsurface of objects thin for their Random Walk material "
-            "(Cycles' walk loses light through their far side)"
+            "Who renders the subsurface of objects thin for their Random Walk material and "
+            "of points near their far side or an edge (Cycles reaches surface the camera "
+            "does not see there)"
         ),
         items=THIN_WALKS,
         default="CYCLES",

@@ -804,7 +804,7 @@ def job_from_scene(
     job.thin_walks = _given(thin_walks, settings.thin_walks)
     if thin_parts.cycles_renders(job.thin_walks, pass_engine):
         job.thin = thin_parts.thin_objects(scene)
-        job.thin_points = thin_parts.has_walks(job.materials)
+        job.thin_points = thin_parts.has_thin_points(job.materials)
     return job
 
 

@@ -1,4 +1,4 @@
-"""Parts thin for their Random Walk material: found, and by default left to Cycles.
+"""Thin parts: found, and by default left to Cycles.
 
 Cycles' random walk loses light through the far side of a part only a few mean
 free paths thick, how much depending on what lies beyond (measured on slabs in
@@ -7,8 +7,9 @@ only and keeps that light, so such a part comes out brighter than Cycles
 renders it, and over a large flat part, where the blur changes little, that
 error outweighs what the post adds.
 
-With *Thin Random Walk Parts* on Cycles (the default; ``cvsss render
---thin-walks``), the pass render gives each thin object its own copy of those
+With *Thin Parts* on Cycles (the default; ``cvsss render
+--thin-walks``), the pass render gives each object thin for its Random Walk
+material its own copy of those
 materials, taking no part (``sss_material.mode`` OFF), so Cycles renders
 their subsurface as in the user's own render and the post leaves their pixels
 as rendered; a denoised finished frame treats them as the user's denoiser
@@ -21,7 +22,8 @@ per shading point instead: :func:`thin_point_nodes` gives the material's weight
 back where Ambient Occlusion nodes looking inside meet the part's own surface
 within the same bound (a thin feature) or within a shorter one, which grows with the
 object's thickness (the rim along an edge, where the walk leaves through the other
-face), and the pass reader
+face), for Christensen-Burley materials too (:func:`thin_length`: Cycles' disk
+probes reach such surface as well), and the pass reader
 (:func:`core.io.exr.read_frame`) takes the pixels made mostly of such points out
 of the post. Apply on Render,
 ``cvsss render`` and the farm's pass chunks all follow the setting.
@@ -105,10 +107,34 @@ THIN_EDGE_SHARE = 0.75
 THICKNESS_PROPERTY = "cvsss_thickness"
 
 
-def has_walks(materials) -> bool:
-    """Whether any of ``materials`` is modelled as a random walk (:func:`thin_point_nodes`
-    applies to them)."""
-    return any(sss_materials.walk_mean_free_path(m) for m in materials)
+#: The length the thin-point rules count in for a Christensen-Burley material, per unit
+#: of its longest channel's d (the shape the post samples): Cycles' disk probes reach the
+#: faces round an edge as a walk does, over a length that scales with d. 0.4 came out
+#: closest to the ground truth on the demo scenes of the three tried (0.25, 0.4, 0.6).
+#: Such a material gets the rim's node only: the thin-feature node's four more rays a
+#: shading point cost more than the issue's bound on Apply on Render's time allows, for
+#: little (docs/explanation/accuracy.md §2.3).
+BURLEY_THIN_LENGTH = 0.4
+
+
+def thin_length(material) -> float | None:
+    """The length (scene units) in which :func:`thin_point_nodes` counts its bounds for
+    ``material``: a Random Walk's longest mean free path, or :data:`BURLEY_THIN_LENGTH`
+    times a Christensen-Burley's longest d; None for what the post models otherwise (a
+    measured preset, an override)."""
+    ell = sss_materials.walk_mean_free_path(material)
+    if ell is not None:
+        return ell
+    model = sss_materials.own_model(material)
+    if model is None or model[0] != "BURLEY":
+        return None
+    d = sss_materials.principled_shape(material)
+    return BURLEY_THIN_LENGTH * float(max(d)) if d else None
+
+
+def has_thin_points(materials) -> bool:
+    """Whether :func:`thin_point_nodes` applies to any of ``materials``."""
+    return any(thin_length(m) for m in materials)
 
 
 def record(objects: list[str], points: bool) -> dict:
@@ -121,11 +147,12 @@ def record(objects: list[str], points: bool) -> dict:
         "edge_mean_free_paths": THIN_EDGE_MEAN_FREE_PATHS,
         "edge_max_mean_free_paths": THIN_EDGE_MAX_MEAN_FREE_PATHS,
         "edge_thickness_share": THIN_EDGE_THICKNESS_SHARE,
+        "burley_length": BURLEY_THIN_LENGTH,
     }
 
 
 def cycles_renders(who: str, engine: str | None) -> bool:
-    """Whether the pass render leaves thin Random Walk parts to Cycles: ``who`` (the
+    """Whether the pass render leaves thin parts to Cycles: ``who`` (the
     setting, "CYCLES" or "POST") asks it and the passes are Cycles'."""
     return engine == "CYCLES" and who == "CYCLES"
 
@@ -162,39 +189,50 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
     :data:`THICKNESS_PROPERTY`, :class:`Thickness`), kept between
     :data:`THIN_EDGE_MEAN_FREE_PATHS` and :data:`THIN_EDGE_MAX_MEAN_FREE_PATHS` mean
     free paths (the least on an object without the property, a linked one): where
-    Cycles' walk reaches surface the camera may not see. There
+    Cycles' walk, or its disk probes, reach surface the camera may not see. Mean free
+    paths are :func:`thin_length`'s. There
     the weight is the user's again (its value or its link); elsewhere it stays 0. The
     value AOV :data:`THIN_POINT_AOV` is 1 at thin points (read by :func:`core.io.exr.read_frame`).
     An animated (unlinked) weight keeps there the value it had when the pass render
     was set up: its animation stays muted, as for the points the post renders.
     ``new(tree, node type)`` makes a node the pass render removes afterwards. Random
-    Walk materials only; a Principled BSDF shared through a node group is wired once.
+    Walk and Christensen-Burley materials (:func:`thin_length`); a Christensen-Burley
+    material gets the rim's node only (:data:`BURLEY_THIN_LENGTH`); a Principled BSDF
+    shared through a node group is wired once.
     """
-    ell = sss_materials.walk_mean_free_path(material)
+    ell = thin_length(material)
     if ell is None:
         return
+    walk = sss_materials.walk_mean_free_path(material) is not None
     for tree, node in sss_materials.principled_nodes(material.node_tree):
         saved = sss_materials.disabled(node)
         if saved is None or saved.wired:
             continue
         saved.wired = True
-        thin = new(tree, "ShaderNodeMath")
-        thin.operation = "MAXIMUM"
-        for i, (paths, share) in enumerate(
-            ((THIN_MEAN_FREE_PATHS, THIN_POINT_SHARE), (THIN_EDGE_MEAN_FREE_PATHS, THIN_EDGE_SHARE))
-        ):
+        rules = [(THIN_EDGE_MEAN_FREE_PATHS, THIN_EDGE_SHARE)]
+        if walk:
+            rules.append((THIN_MEAN_FREE_PATHS, THIN_POINT_SHARE))
+        thin = None
+        for paths, share in rules:
             ao = new(tree, "ShaderNodeAmbientOcclusion")
             ao.inside = True
             ao.only_local = True
             ao.samples = THIN_POINT_RAYS
             ao.inputs["Distance"].default_value = paths * ell
-            if i == 1:
+            if share == THIN_EDGE_SHARE:
                 _rim_bound(tree, ao.inputs["Distance"], ell, new)
             hit = new(tree, "ShaderNodeMath")
             hit.operation = "LESS_THAN"
             tree.links.new(ao.outputs["AO"], hit.inputs[0])
             hit.inputs[1].default_value = share
-            tree.links.new(hit.outputs["Value"], thin.inputs[i])
+            if thin is None:
+                thin = hit
+            else:
+                either = new(tree, "ShaderNodeMath")
+                either.operation = "MAXIMUM"
+                tree.links.new(thin.outputs["Value"], either.inputs[0])
+                tree.links.new(hit.outputs["Value"], either.inputs[1])
+                thin = either
         weight = new(tree, "ShaderNodeMath")
         weight.operation = "MULTIPLY"
         tree.links.new(thin.outputs["Value"], weight.inputs[0])

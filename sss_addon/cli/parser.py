@@ -320,10 +320,10 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("cycles", "post"),
         default=None,
         help="who renders the subsurface of objects thinner than 5 mean free paths of their "
-        "Random Walk material, and of points within 5 mean free paths of their own far side "
-        "(ears, fins, edges), on Cycles passes: cycles (as a plain render; its walk loses or "
-        "gains light through the far side, which the post cannot see) or post; default: the "
-        "scene's Thin Random Walk Parts",
+        "Random Walk material, and of points near their own far side or an edge (ears, fins, "
+        "rims) of Random Walk and Christensen-Burley materials, on Cycles passes: cycles (as "
+        "a plain render; its walk and its disk probes reach surface the post cannot see) or "
+        "post; default: the scene's Thin Parts",
     )
     rnd.add_argument(
         "--warmup-frames",

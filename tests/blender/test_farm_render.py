@@ -75,7 +75,7 @@ def test_ground_truth_of_a_chunk_falls_on_the_whole_range(addon):
 
 
 def test_chunks_run_the_files_python_as_the_whole_render_does(addon):
-    """--enable-autoexec / --disable-autoexec, and who renders thin Random Walk parts,
+    """--enable-autoexec / --disable-autoexec, and who renders thin parts,
     reach the chunks' Blender processes."""
     from cvsss.core.params import SSSParams
     from cvsss.sss_addon.blender.render import Job

@@ -118,6 +118,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
         "edge_mean_free_paths": 2.0,
         "edge_max_mean_free_paths": 8.0,
         "edge_thickness_share": 0.4,
+        "burley_length": 0.4,
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
@@ -152,19 +153,31 @@ def _box(verts: list, x0, x1, y0, y1, z0, z1, faces: list) -> None:
         faces.append(tuple(base + i for i in quad))
 
 
-def test_thin_points_are_left_to_cycles(fresh, tmp_path, snapshot):
+def _burley(name: str, d: float):
+    """Christensen-Burley, weight 1, Radius 1 per channel at Scale 4π × ``d`` (m): that
+    Burley d (Radius × Scale / 4π), for every channel."""
+    material = _walk(name)
+    bsdf = material.node_tree.nodes["Principled BSDF"]
+    bsdf.subsurface_method = "BURLEY"
+    bsdf.inputs["Subsurface Scale"].default_value = 4.0 * math.pi * d
+    return material
+
+
+@pytest.mark.parametrize("method", ["RANDOM_WALK", "BURLEY"])
+def test_thin_points_are_left_to_cycles(fresh, tmp_path, snapshot, method):
     """One object of two parts: a 1-m block and, beside it, a 2-mm fin, both facing an
     orthographic camera. The object is not thin (its smallest dimension is 1 m), but
     every point of the fin has its far side 2 mm behind it: in the pass file the fin's
     pixels take no part (Material Index 0) and the middle of the block's face, over
     5 cm from any other of its faces, does (its slot, 1). Afterwards the scene is as
-    before."""
+    before. The same for Christensen-Burley, whose rules count in 0.4 d: with d = 2.5 cm,
+    the same 1 cm as the walk's mean free path."""
     verts, faces = [], []
     _box(verts, 0.2, 1.2, 0.0, 1.0, -0.5, 0.5, faces)  # the block, its face at y = 0
     _box(verts, -1.2, -0.2, 0.0, 0.002, -0.5, 0.5, faces)  # the fin
     mesh = bpy.data.meshes.new("parts")
     mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_walk("walk"))
+    mesh.materials.append(_walk("walk") if method == "RANDOM_WALK" else _burley("disk", 0.025))
     fresh.collection.objects.link(bpy.data.objects.new("parts", mesh))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=8)
     # 2.6 m across 52 px: 0.05 m a pixel, x = 0 at column 26; rows 4-15 are z in ±0.3 m.
