@@ -389,6 +389,7 @@ class _SavedSocket:
     value: float
     links: list = field(default_factory=list)
     muted: list = field(default_factory=list)  # (fcurve, mute flag)
+    muted_links: list = field(default_factory=list)  # from-sockets of muted links
     wired: bool = False  # its weight fed again at thin points (thin_parts.thin_point_nodes)
 
 
@@ -404,7 +405,8 @@ class SSSDisabled(contextlib.AbstractContextManager):
     Linked weights are unlinked and animation or drivers on the weight muted,
     so the render sees 0 on every frame. A muted link passes nothing: it stays
     as it is (muted), and only the links Blender evaluates are removed and
-    put back.
+    put back; a muted link replaced meanwhile (the thin points' nodes feed the
+    socket, :func:`.thin_parts.thin_point_nodes`) is put back muted.
     """
 
     def __init__(self, materials: Iterable) -> None:
@@ -422,6 +424,7 @@ class SSSDisabled(contextlib.AbstractContextManager):
                         node.name,
                         float(socket.default_value),
                         [link.from_socket for link in live_links(socket)],
+                        muted_links=[link.from_socket for link in socket.links if link.is_muted],
                     )
                     self.saved.append(saved)
                     _DISABLED.setdefault(node.as_pointer(), saved)
@@ -449,6 +452,9 @@ class SSSDisabled(contextlib.AbstractContextManager):
             for from_socket in saved.links:
                 if not any(link.from_socket == from_socket for link in live_links(socket)):
                     saved.node_tree.links.new(from_socket, socket)
+            for from_socket in saved.muted_links:
+                if not any(link.from_socket == from_socket for link in socket.links):
+                    saved.node_tree.links.new(from_socket, socket).is_muted = True
             for fcurve, mute in saved.muted:
                 fcurve.mute = mute
         self.saved.clear()

@@ -147,7 +147,7 @@ class Job:
     thin: list = field(default_factory=list)
     #: Who renders their subsurface, resolved ("CYCLES" or "POST"; farm chunks get it).
     thin_walks: str = "CYCLES"
-    #: Cycles also renders the subsurface of the Random Walk materials' thin points.
+    #: Cycles also renders the subsurface of the materials' thin points and rims.
     thin_points: bool = False
 
     @property
