@@ -209,17 +209,17 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
         if saved is None or saved.wired:
             continue
         saved.wired = True
-        rules = [(THIN_EDGE_MEAN_FREE_PATHS, THIN_EDGE_SHARE)]
+        rules = [(THIN_EDGE_MEAN_FREE_PATHS, THIN_EDGE_SHARE, True)]  # (bound, share, rim)
         if walk:
-            rules.append((THIN_MEAN_FREE_PATHS, THIN_POINT_SHARE))
+            rules.append((THIN_MEAN_FREE_PATHS, THIN_POINT_SHARE, False))
         thin = None
-        for paths, share in rules:
+        for paths, share, rim in rules:
             ao = new(tree, "ShaderNodeAmbientOcclusion")
             ao.inside = True
             ao.only_local = True
             ao.samples = THIN_POINT_RAYS
             ao.inputs["Distance"].default_value = paths * ell
-            if share == THIN_EDGE_SHARE:
+            if rim:
                 _rim_bound(tree, ao.inputs["Distance"], ell, new)
             hit = new(tree, "ShaderNodeMath")
             hit.operation = "LESS_THAN"
@@ -287,7 +287,12 @@ class Thickness(contextlib.AbstractContextManager):
                     and obj.is_editable
                     and any(s.material in self.materials for s in obj.material_slots)
                 ):
-                    self._saved[obj.name] = obj.get(THICKNESS_PROPERTY, self._NONE)
+                    value = obj.get(THICKNESS_PROPERTY, self._NONE)
+                    if hasattr(value, "to_dict"):  # a group or an array: keep a copy
+                        value = value.to_dict()
+                    elif hasattr(value, "to_list"):
+                        value = value.to_list()
+                    self._saved[obj.name] = value
                     obj[THICKNESS_PROPERTY] = float(min(obj.dimensions))
         except BaseException:
             self.restore()

@@ -256,14 +256,14 @@ def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
     mesh.from_pydata(verts, [], faces)
     mesh.materials.append(_walk("walk", mean_free_path=0.1))
     cube = bpy.data.objects.new("cube", mesh)
-    cube[thin_parts.THICKNESS_PROPERTY] = "the user's"
+    cube[thin_parts.THICKNESS_PROPERTY] = [7.0, 8.0]  # the user's own, an array
     fresh.collection.objects.link(cube)
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
     rims = frame.material[4:16, [6, 7, 8, 9, 42, 43, 44, 45]]
     assert (rims == 0).sum() >= rims.size // 2, rims
     assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
-    assert cube[thin_parts.THICKNESS_PROPERTY] == "the user's"
+    assert list(cube[thin_parts.THICKNESS_PROPERTY]) == [7.0, 8.0]
 
 
 def test_a_part_a_few_mean_free_paths_thick_is_no_rim_inside(fresh, tmp_path, snapshot):
