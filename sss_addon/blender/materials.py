@@ -270,6 +270,11 @@ def scene_materials(scene, view_layer=None) -> list:
     return [found[name] for name in sorted(found)]
 
 
+def carries(obj, materials) -> bool:
+    """Whether one of ``obj``'s material slots holds one of ``materials`` (a set)."""
+    return any(s.material in materials for s in getattr(obj, "material_slots", ()))
+
+
 def participating(scene, view_layer=None) -> list:
     """Scene materials that take part, in slot order (sorted by name)."""
     return [m for m in scene_materials(scene, view_layer) if participates(m)]

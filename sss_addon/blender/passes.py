@@ -540,12 +540,9 @@ def number_objects(scene, materials) -> None:
     :class:`PassSetup` restores them all.
     """
     wanted = set(materials)
-
-    def carries(obj) -> bool:
-        return any(s.material in wanted for s in getattr(obj, "material_slots", ()))
-
     in_scene = [o for o in scene.objects if o.is_editable]
-    order = sorted(in_scene, key=lambda o: not carries(o))  # stable: carriers first
+    # Stable: the carriers first, each part in the scene's order.
+    order = sorted(in_scene, key=lambda o: not sss_materials.carries(o, wanted))
     numbers = {o.name: i for i, o in enumerate(order, 1) if i <= MAX_PASS_INDEX}
     for obj in in_scene:
         index = numbers.get(obj.name, 0)

@@ -285,7 +285,7 @@ class Thickness(contextlib.AbstractContextManager):
                 if (
                     obj.type == "MESH"
                     and obj.is_editable
-                    and any(s.material in self.materials for s in obj.material_slots)
+                    and sss_materials.carries(obj, self.materials)
                 ):
                     value = obj.get(THICKNESS_PROPERTY, self._NONE)
                     if hasattr(value, "to_dict"):  # a group or an array: keep a copy
