@@ -97,10 +97,19 @@ THIN_POINT_SHARE = 0.5
 #: so the whole part would be rim. The rims of the demo's marble block (20 mean free paths
 #: across, its hidden top lit) came out closer to the ground truth from Cycles the wider
 #: they were, while the candles' wax (about six across) came out further once more of it
-#: went to Cycles (docs/explanation/accuracy.md §2.3).
+#: went to Cycles. A part thicker than THIN_EDGE_FALL_MEAN_FREE_PATHS[0] scattering
+#: lengths (fall_scale: a Christensen-Burley material's are its d) has the bound fall back
+#: to the least by THIN_EDGE_FALL_MEAN_FREE_PATHS[1]: through a thinner part the light of
+#: its hidden faces crosses the whole part, through a thicker one it arrives only round
+#: the edge, where the least bound's band takes it, and a wider band there only trades
+#: the post's smooth pixels for Cycles' noisier walk. Blender's default cube (500 across)
+#: lost 1.2 dB to the wider band; the same cube made more translucent came out closer
+#: with the wide band up to about 22 across and with the least from 25 (docs/explanation/
+#: accuracy.md §2.3).
 THIN_EDGE_MEAN_FREE_PATHS = 2.0
 THIN_EDGE_MAX_MEAN_FREE_PATHS = 8.0
 THIN_EDGE_THICKNESS_SHARE = 0.4
+THIN_EDGE_FALL_MEAN_FREE_PATHS = (22.0, 25.0)
 THIN_EDGE_SHARE = 0.75
 #: The object property (scene units) through which the rim's nodes read each object's
 #: thickness: set by :class:`Thickness` for the pass render only.
@@ -147,6 +156,7 @@ def record(objects: list[str], points: bool) -> dict:
         "edge_mean_free_paths": THIN_EDGE_MEAN_FREE_PATHS,
         "edge_max_mean_free_paths": THIN_EDGE_MAX_MEAN_FREE_PATHS,
         "edge_thickness_share": THIN_EDGE_THICKNESS_SHARE,
+        "edge_fall_mean_free_paths": list(THIN_EDGE_FALL_MEAN_FREE_PATHS),
         "burley_length": BURLEY_THIN_LENGTH,
     }
 
@@ -188,7 +198,8 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
     :data:`THIN_EDGE_THICKNESS_SHARE` of the object's thickness (the property
     :data:`THICKNESS_PROPERTY`, :class:`Thickness`), kept between
     :data:`THIN_EDGE_MEAN_FREE_PATHS` and :data:`THIN_EDGE_MAX_MEAN_FREE_PATHS` mean
-    free paths (the least on an object without the property, a linked one): where
+    free paths and back to the least on a part many of them thick (:func:`rim_bound`;
+    the least on an object without the property, a linked one): where
     Cycles' walk, or its disk probes, reach surface the camera may not see. Mean free
     paths are :func:`thin_length`'s. There
     the weight is the user's again (its value or its link); elsewhere it stays 0. The
@@ -220,7 +231,7 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
             ao.samples = THIN_POINT_RAYS
             ao.inputs["Distance"].default_value = paths * ell
             if rim:
-                _rim_bound(tree, ao.inputs["Distance"], ell, new)
+                _rim_bound(tree, ao.inputs["Distance"], ell, fall_scale(material), new)
             hit = new(tree, "ShaderNodeMath")
             hit.operation = "LESS_THAN"
             tree.links.new(ao.outputs["AO"], hit.inputs[0])
@@ -246,25 +257,69 @@ def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:
         tree.links.new(thin.outputs["Value"], out.inputs["Value"])
 
 
-def _rim_bound(tree, distance, ell: float, new: Callable[[object, str], object]) -> None:
-    """Feed ``distance`` (an Ambient Occlusion node's input) the rim's bound for a
-    material of mean free path ``ell``: the object's thickness times
-    :data:`THIN_EDGE_THICKNESS_SHARE`, clamped to the bounds in mean free paths."""
-    thickness = new(tree, "ShaderNodeAttribute")
-    thickness.attribute_type = "OBJECT"
-    thickness.attribute_name = THICKNESS_PROPERTY
-    bound = thickness.outputs["Fac"]
-    for operation, value in (
-        ("MULTIPLY", THIN_EDGE_THICKNESS_SHARE),
-        ("MINIMUM", THIN_EDGE_MAX_MEAN_FREE_PATHS * ell),
-        ("MAXIMUM", THIN_EDGE_MEAN_FREE_PATHS * ell),
-    ):
+def rim_bound(thickness: float, ell: float, scale: float | None = None) -> float:
+    """The rim's bound (scene units) for a part ``thickness`` thick (scene units) of a
+    material whose bounds count in ``ell`` (:func:`thin_length`) and whose scattering
+    length is ``scale`` (:func:`fall_scale`; default ``ell``):
+    :data:`THIN_EDGE_THICKNESS_SHARE` of the thickness, at most
+    :data:`THIN_EDGE_MAX_MEAN_FREE_PATHS` ``ell``, falling from there to the least
+    (:data:`THIN_EDGE_MEAN_FREE_PATHS` ``ell``) as the thickness goes over
+    :data:`THIN_EDGE_FALL_MEAN_FREE_PATHS` ``scale``, and never under the least. What
+    the nodes of :func:`_rim_bound` compute per object."""
+    slope, offset = _fall_line(ell, ell if scale is None else scale)
+    most = min(
+        THIN_EDGE_THICKNESS_SHARE * thickness,
+        offset - slope * thickness,
+        THIN_EDGE_MAX_MEAN_FREE_PATHS * ell,
+    )
+    return max(THIN_EDGE_MEAN_FREE_PATHS * ell, most)
+
+
+def fall_scale(material) -> float | None:
+    """The length (scene units) in which the rim bound's fall counts a part's thickness
+    for ``material``: its scattering length, a Random Walk's longest mean free path or a
+    Christensen-Burley's longest d (on the demo's marble the two are about equal); None
+    where :func:`thin_length` is."""
+    ell = thin_length(material)
+    if ell is None or sss_materials.walk_mean_free_path(material) is not None:
+        return ell
+    return ell / BURLEY_THIN_LENGTH
+
+
+def _fall_line(ell: float, scale: float) -> tuple[float, float]:
+    """(slope, offset) of the falling line ``offset - slope * thickness`` (scene units):
+    the most bound at the fall's start, the least at its end."""
+    start, end = (paths * scale for paths in THIN_EDGE_FALL_MEAN_FREE_PATHS)
+    slope = (THIN_EDGE_MAX_MEAN_FREE_PATHS - THIN_EDGE_MEAN_FREE_PATHS) * ell / (end - start)
+    return slope, THIN_EDGE_MAX_MEAN_FREE_PATHS * ell + slope * start
+
+
+def _rim_bound(
+    tree, distance, ell: float, scale: float, new: Callable[[object, str], object]
+) -> None:
+    """Feed ``distance`` (an Ambient Occlusion node's input) :func:`rim_bound` of the
+    object's thickness (its property :data:`THICKNESS_PROPERTY`; 0 without it, which
+    gives the least) with ``ell`` and ``scale``."""
+    attribute = new(tree, "ShaderNodeAttribute")
+    attribute.attribute_type = "OBJECT"
+    attribute.attribute_name = THICKNESS_PROPERTY
+    thickness = attribute.outputs["Fac"]
+
+    def math(operation: str, *inputs):
         node = new(tree, "ShaderNodeMath")
         node.operation = operation
-        tree.links.new(bound, node.inputs[0])
-        node.inputs[1].default_value = value
-        bound = node.outputs["Value"]
-    tree.links.new(bound, distance)
+        for socket, value in zip(node.inputs, inputs):
+            if isinstance(value, int | float):
+                socket.default_value = value
+            else:
+                tree.links.new(value, socket)
+        return node.outputs["Value"]
+
+    slope, offset = _fall_line(ell, scale)
+    fall = math("MULTIPLY_ADD", thickness, -slope, offset)
+    share = math("MULTIPLY", thickness, THIN_EDGE_THICKNESS_SHARE)
+    bound = math("MINIMUM", math("MINIMUM", share, fall), THIN_EDGE_MAX_MEAN_FREE_PATHS * ell)
+    tree.links.new(math("MAXIMUM", bound, THIN_EDGE_MEAN_FREE_PATHS * ell), distance)
 
 
 class Thickness(contextlib.AbstractContextManager):

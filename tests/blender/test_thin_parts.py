@@ -118,6 +118,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
         "edge_mean_free_paths": 2.0,
         "edge_max_mean_free_paths": 8.0,
         "edge_thickness_share": 0.4,
+        "edge_fall_mean_free_paths": [22.0, 25.0],
         "burley_length": 0.4,
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
@@ -264,6 +265,39 @@ def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
     assert (rims == 0).sum() >= rims.size // 2, rims
     assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
     assert list(cube[thin_parts.THICKNESS_PROPERTY]) == [7.0, 8.0]
+
+
+def test_a_part_many_mean_free_paths_thick_has_the_least_rim(fresh, tmp_path, snapshot):
+    """The 2-m cube of the test above, its material's mean free path 5 cm (40 across,
+    beyond the fall of the bound, which ends at 25): its rims' bound is the least, two
+    mean free paths, as for a part five across. A point a mean free path or more from an
+    edge then has its other face at least half the bound away, which few of its four rays
+    reach: the second pixel column in from each side edge (1-2 mean free paths from it)
+    takes part. With the thick part's bound of eight mean free paths about half of
+    those pixels went to Cycles."""
+    verts, faces = [], []
+    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)
+    mesh = bpy.data.meshes.new("cube")
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(_walk("walk", mean_free_path=0.05))
+    fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
+    frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
+    assert (frame.material[4:16, [7, 44]] == 1).all(), frame.material[4:16]
+    assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
+
+
+def test_the_rim_bound_follows_the_thickness():
+    """The rule in mean free paths (a mean free path of 2 scene units, so every bound
+    doubles): 0.4 of the thickness between 2 and 8, and from 22 to 25 mean free paths
+    across falling from 8 back to 2, along a straight line. A Christensen-Burley
+    material counts its bounds in 0.4 d and the fall in d."""
+    expected = {0: 2, 4: 2, 5: 2, 10: 4, 20: 8, 22: 8, 23.5: 5, 25: 2, 40: 2, 500: 2}
+    for thickness, bound in expected.items():
+        assert thin_parts.rim_bound(2.0 * thickness, 2.0) == pytest.approx(2.0 * bound)
+    # A Christensen-Burley material: bounds in 0.4 d, the fall in d (here d = 2.5).
+    expected = {20: 8, 50: 8, 55: 8, 58.75: 5, 62.5: 2, 100: 2}
+    for thickness, bound in expected.items():
+        assert thin_parts.rim_bound(thickness, 1.0, 2.5) == pytest.approx(bound)
 
 
 def test_a_part_a_few_mean_free_paths_thick_is_no_rim_inside(fresh, tmp_path, snapshot):

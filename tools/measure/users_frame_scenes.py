@@ -2,8 +2,10 @@
 
 The three demo scenes (demo_blend/scenes.py, Christensen-Burley materials) and
 the independent check scene (docs/checks/flicker_point_light.py, built without
-the demo's helpers, Principled BSDF left at Blender's default Random Walk),
-each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
+the demo's helpers, Principled BSDF left at Blender's default Random Walk)
+and Blender's default cube (the factory startup file, its material's Subsurface
+Weight set to 1, everything else as Blender has it: Random Walk, radius
+(1, 0.2, 0.1) × 0.05 m, a still at frame 1), each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
 ``--eevee-samples``; Cycles' denoiser is left as the scene has it (``cvsss
 compare`` turns it on for the plain render, as Blender's default does)::
 
@@ -30,7 +32,7 @@ CHECK_SCENE = ROOT / "docs" / "checks" / "flicker_point_light.py"
 
 
 def build(name: str, path: Path) -> None:
-    """The scene ``name`` (a demo scene or ``flicker``) in a fresh file, saved at ``path``."""
+    """The scene ``name`` (a demo scene, ``flicker`` or ``cube``) in a fresh file, saved at ``path``."""
     if name == "flicker":
         argv = sys.argv
         sys.argv = [str(CHECK_SCENE), str(path)]
@@ -38,6 +40,13 @@ def build(name: str, path: Path) -> None:
             runpy.run_path(str(CHECK_SCENE), run_name="__main__")
         finally:
             sys.argv = argv
+        return
+    if name == "cube":
+        bpy.ops.wm.read_homefile(use_factory_startup=True)
+        bpy.context.scene.render.engine = "CYCLES"
+        principled = bpy.data.materials["Material"].node_tree.nodes["Principled BSDF"]
+        principled.inputs["Subsurface Weight"].default_value = 1.0
+        bpy.ops.wm.save_as_mainfile(filepath=str(path))
         return
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scenes.build(name, bpy.context.scene, frames=120)
@@ -49,7 +58,7 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("width", type=int)
     parser.add_argument("height", type=int)
-    parser.add_argument("--scenes", default="flicker," + ",".join(scenes.names()))
+    parser.add_argument("--scenes", default="flicker,cube," + ",".join(scenes.names()))
     parser.add_argument("--samples", type=int, default=16)
     parser.add_argument("--eevee-samples", type=int, default=16)
     args = parser.parse_args()
