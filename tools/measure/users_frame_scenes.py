@@ -13,6 +13,8 @@ compare`` turns it on for the plain render, as Blender's default does)::
     .venv/bin/cvsss compare out/users/flicker.blend --frames 10-11 \
         --out out/users/flicker --engine CYCLES --samples 16,64 \
         --method-variants material,BURLEY
+    .venv/bin/python tools/measure/users_frame_scenes.py out/cube20 128 72 --scenes cube \
+        --cube-scale 1.26
 """
 
 from __future__ import annotations
@@ -31,8 +33,9 @@ ROOT = Path(__file__).resolve().parents[2]
 CHECK_SCENE = ROOT / "docs" / "checks" / "flicker_point_light.py"
 
 
-def build(name: str, path: Path) -> None:
-    """The scene ``name`` (a demo scene, ``flicker`` or ``cube``) in a fresh file, saved at ``path``."""
+def build(name: str, path: Path, cube_scale: float | None = None) -> None:
+    """The scene ``name`` (a demo scene, ``flicker`` or ``cube``) in a fresh file, saved
+    at ``path``; ``cube_scale`` sets the cube's Subsurface Scale (m; Blender's 0.05 if None)."""
     if name == "flicker":
         argv = sys.argv
         sys.argv = [str(CHECK_SCENE), str(path)]
@@ -46,6 +49,8 @@ def build(name: str, path: Path) -> None:
         bpy.context.scene.render.engine = "CYCLES"
         principled = bpy.data.materials["Material"].node_tree.nodes["Principled BSDF"]
         principled.inputs["Subsurface Weight"].default_value = 1.0
+        if cube_scale is not None:
+            principled.inputs["Subsurface Scale"].default_value = cube_scale
         bpy.ops.wm.save_as_mainfile(filepath=str(path))
         return
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
@@ -61,12 +66,18 @@ def main() -> None:
     parser.add_argument("--scenes", default="flicker,cube," + ",".join(scenes.names()))
     parser.add_argument("--samples", type=int, default=16)
     parser.add_argument("--eevee-samples", type=int, default=16)
+    parser.add_argument(
+        "--cube-scale",
+        type=float,
+        help="the cube's Subsurface Scale in m (Blender's 0.05 by default; the cube is 2 m "
+        "across, 500 mean free paths of its Random Walk at 0.05, 20 at 1.26)",
+    )
     args = parser.parse_args()
     ensure_registered()
     args.out.mkdir(parents=True, exist_ok=True)
     for name in args.scenes.split(","):
         path = args.out / f"{name}.blend"
-        build(name, path)
+        build(name, path, args.cube_scale)
         bpy.ops.wm.open_mainfile(filepath=str(path))
         scene = bpy.context.scene
         scene.render.resolution_x, scene.render.resolution_y = args.width, args.height
