@@ -3,9 +3,10 @@
 The three demo scenes (demo_blend/scenes.py, Christensen-Burley materials) and
 the independent check scene (docs/checks/flicker_point_light.py, built without
 the demo's helpers, Principled BSDF left at Blender's default Random Walk)
-and Blender's default cube (the factory startup file, its material's Subsurface
+Blender's default cube (the factory startup file, its material's Subsurface
 Weight set to 1, everything else as Blender has it: Random Walk, radius
-(1, 0.2, 0.1) × 0.05 m, a still at frame 1), each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
+(1, 0.2, 0.1) × 0.05 m, a still at frame 1) and ``monkey``, the same file with
+the cube replaced by a subdivided Suzanne in a skin tone, each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
 ``--eevee-samples``; Cycles' denoiser is left as the scene has it (``cvsss
 compare`` turns it on for the plain render, as Blender's default does)::
 
@@ -34,7 +35,7 @@ CHECK_SCENE = ROOT / "docs" / "checks" / "flicker_point_light.py"
 
 
 def build(name: str, path: Path, cube_scale: float | None = None) -> None:
-    """The scene ``name`` (a demo scene, ``flicker`` or ``cube``) in a fresh file, saved
+    """The scene ``name`` (a demo scene, ``flicker``, ``cube`` or ``monkey``) in a fresh file, saved
     at ``path``; ``cube_scale`` sets the cube's Subsurface Scale (m; Blender's 0.05 if None)."""
     if name == "flicker":
         argv = sys.argv
@@ -44,11 +45,13 @@ def build(name: str, path: Path, cube_scale: float | None = None) -> None:
         finally:
             sys.argv = argv
         return
-    if name == "cube":
+    if name in ("cube", "monkey"):
         bpy.ops.wm.read_homefile(use_factory_startup=True)
         bpy.context.scene.render.engine = "CYCLES"
         principled = bpy.data.materials["Material"].node_tree.nodes["Principled BSDF"]
         principled.inputs["Subsurface Weight"].default_value = 1.0
+        if name == "monkey":
+            _monkey(principled)
         if cube_scale is not None:
             principled.inputs["Subsurface Scale"].default_value = cube_scale
         bpy.ops.wm.save_as_mainfile(filepath=str(path))
@@ -58,12 +61,28 @@ def build(name: str, path: Path, cube_scale: float | None = None) -> None:
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
 
 
+def _monkey(principled) -> None:
+    """Replace the factory cube by Suzanne as a user adds her (Add ▸ Mesh ▸ Monkey, size
+    2 m, Subdivision Surface level 2, Shade Smooth) with the cube's material, its Base
+    Color a skin tone."""
+    cube = bpy.data.objects["Cube"]
+    material = cube.active_material
+    bpy.data.objects.remove(cube)
+    bpy.ops.mesh.primitive_monkey_add(size=2.0)
+    monkey = bpy.context.active_object
+    monkey.data.materials.append(material)
+    subdivision = monkey.modifiers.new("Subdivision", "SUBSURF")
+    subdivision.levels = subdivision.render_levels = 2
+    bpy.ops.object.shade_smooth()
+    principled.inputs["Base Color"].default_value = (0.8, 0.5, 0.4, 1.0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
     parser.add_argument("width", type=int)
     parser.add_argument("height", type=int)
-    parser.add_argument("--scenes", default="flicker,cube," + ",".join(scenes.names()))
+    parser.add_argument("--scenes", default="flicker,cube,monkey," + ",".join(scenes.names()))
     parser.add_argument("--samples", type=int, default=16)
     parser.add_argument("--eevee-samples", type=int, default=16)
     parser.add_argument(
