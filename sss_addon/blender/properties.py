@@ -202,7 +202,7 @@ THIN_WALKS = (
     (
         "CYCLES",
         "Cycles",
-        "Cycles renders the subsurface of objects thinner than 5 mean free paths of their "
+        "Cycles renders the subsurface of objects thinner than 50 mean free paths of their "
         "Random Walk material, and of points near their own far side or an edge (ears, fins, "
         "rims) of Random Walk and Christensen-Burley materials, as in a plain render: its "
         "walk and its disk probes reach surface screen space cannot see. Cycles passes only",
@@ -210,7 +210,7 @@ THIN_WALKS = (
     (
         "POST",
         "Post-Process",
-        "The post-process renders them like every other object: brighter than Cycles",
+        "The post-process renders them like every other object: faster, further from Cycles",
     ),
 )
 

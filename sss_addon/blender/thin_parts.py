@@ -40,11 +40,19 @@ import bpy
 from ...core.io.exr import THIN_POINT_AOV
 from . import materials as sss_materials
 
-#: Parts thinner than this many mean free paths of their Random Walk material are thin:
-#: below it a free slab still loses a tenth of its light, which the post would keep; above
-#: it round parts (the demo's candles) came out closer to Cycles from the post
+#: A point is thin when its far side lies within this many mean free paths of its Random
+#: Walk material (the thin-feature node of :func:`thin_point_nodes`: an ear, a fin): below
+#: it a free slab still loses a tenth of its light, which the post would keep
 #: (docs/explanation/accuracy.md §2.3).
 THIN_MEAN_FREE_PATHS = 5.0
+#: An object whose smallest dimension is under this many mean free paths of its Random
+#: Walk material is left to Cycles whole: on every part this thin that was measured (the
+#: demo's marble tops, apples, candles, block and Suzanne, Blender's default cube made
+#: 15-50 across) Cycles' walk with its denoiser at 16 spp came out as close to the ground
+#: truth as the post or closer, the walk's light reaching the part's hidden sides, which
+#: the post does not see; on thicker ones (75 and more across) the post came out 2-9 dB
+#: closer (docs/explanation/accuracy.md §2.3).
+THIN_OBJECT_MEAN_FREE_PATHS = 50.0
 
 
 def thin_objects(scene) -> list[tuple[object, list]]:
@@ -52,7 +60,8 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     those materials: [(object, [material, ...])], in the scene's order.
 
     Thin: the object's smallest dimension (its bounding box, scene units) is under
-    :data:`THIN_MEAN_FREE_PATHS` times the material's longest channel's mean free path.
+    :data:`THIN_OBJECT_MEAN_FREE_PATHS` times the material's longest channel's mean free
+    path.
     Reads settings, slots and sizes only (the panel calls it on every redraw); objects
     are read only when some participating material has a walk.
     """
@@ -73,7 +82,7 @@ def thin_objects(scene) -> list[tuple[object, list]]:
             slot.material
             for slot in obj.material_slots
             if slot.material is not None
-            and smallest < THIN_MEAN_FREE_PATHS * walks.get(slot.material.name, 0.0)
+            and smallest < THIN_OBJECT_MEAN_FREE_PATHS * walks.get(slot.material.name, 0.0)
         ]
         if thin:
             found.append((obj, list(dict.fromkeys(thin))))
@@ -152,6 +161,7 @@ def record(objects: list[str], points: bool) -> dict:
     return {
         "objects": sorted(objects),
         "points": bool(points),
+        "object_mean_free_paths": THIN_OBJECT_MEAN_FREE_PATHS,
         "mean_free_paths": THIN_MEAN_FREE_PATHS,
         "edge_mean_free_paths": THIN_EDGE_MEAN_FREE_PATHS,
         "edge_max_mean_free_paths": THIN_EDGE_MAX_MEAN_FREE_PATHS,
@@ -177,7 +187,7 @@ def note(scene, engine: str | None, who: str | None = None) -> list[str]:
     names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
     head = (
         f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
-        f"{THIN_MEAN_FREE_PATHS:g} mean free paths)"
+        f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across)"
     )
     if cycles_renders(who, engine):
         return [f"{head}: Cycles renders {'its' if len(thin) == 1 else 'their'} subsurface"]

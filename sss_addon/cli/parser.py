@@ -319,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--thin-walks",
         choices=("cycles", "post"),
         default=None,
-        help="who renders the subsurface of objects thinner than 5 mean free paths of their "
+        help="who renders the subsurface of objects thinner than 50 mean free paths of their "
         "Random Walk material, and of points near their own far side or an edge (ears, fins, "
         "rims) of Random Walk and Christensen-Burley materials, on Cycles passes: cycles (as "
         "a plain render; its walk and its disk probes reach surface the post cannot see) or "

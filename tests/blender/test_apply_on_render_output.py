@@ -282,12 +282,16 @@ def test_the_panel_says_what_differs_before_the_render(scene):
 
 
 def test_the_panel_notes_parts_thin_for_random_walk(scene, walk_everywhere):
-    """The flash demo's marble table top is 2 cm thick, two mean free paths of its marble
-    (Burley d = 1 cm in red, the demo's D_MAX); every other subsurface object is over
-    10 cm. Only with Random Walk, and only while under 5 mean free paths, is it noted;
-    the note says who renders it."""
-    head = "'flash Marble Top' is thin for Random Walk (under 5 mean free paths): "
-    cycles = head + "Cycles renders its subsurface"
+    """The flash demo's subsurface objects, switched to Random Walk, are 2 (the marble
+    table top, 2 cm) to 20.4 (Suzanne) mean free paths of their material thick (the
+    marble's 1 cm in red, the demo's D_MAX): all five under 50. Only with Random Walk
+    are they noted, in the scene's order; the note says who renders them. The top made
+    60 cm thick (60 mean free paths) drops out of it."""
+    head = (
+        "'flash Marble Top', 'flash Suzanne', 'flash Marble' and 2 more are thin for Random "
+        "Walk (under 50 mean free paths across): "
+    )
+    cycles = head + "Cycles renders their subsurface"
     post = (
         head + "Cycles loses light through the far side, the post keeps it (brighter than Cycles)"
     )
@@ -301,9 +305,12 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene, walk_everywhere):
     assert [n for n in scene_notes(scene) if "Random Walk" in n] == [post]
     scene.render.engine = "CYCLES"
     top = scene.objects["flash Marble Top"]
-    top.scale.z *= 3.5  # 7 cm: seven mean free paths
+    top.scale.z *= 30.0  # 60 cm: 60 mean free paths
     bpy.context.view_layer.update()
-    assert [n for n in scene_notes(scene) if "Random Walk" in n] == []
+    assert [n for n in scene_notes(scene) if "Random Walk" in n] == [
+        "'flash Suzanne', 'flash Marble', 'flash Apple' and 1 more are thin for Random Walk "
+        "(under 50 mean free paths across): Cycles renders their subsurface"
+    ]
 
 
 def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, walk_everywhere):

@@ -52,8 +52,8 @@ def _slab(scene, name: str, material, thickness: float):
 
 
 def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
-    """A 1-mm slab of a walk with 1-cm radii is thin (under 5 mean free paths); a 1-m cube
-    of it is not. The slab's slot gets a copy that takes no part, with its own copy of the
+    """A 1-mm slab of a walk with 1-cm radii is thin (under 50 mean free paths); a 1-m
+    cube of it is not. The slab's slot gets a copy that takes no part, with its own copy of the
     node group, so switching the original's subsurface off (the pass render) leaves the
     copy's on; afterwards the slot, the materials and the groups are as before."""
     material, group = _grouped_walk("walk")
@@ -83,7 +83,8 @@ def test_thin_objects_get_copies_that_keep_their_subsurface(fresh, snapshot):
 
 def test_the_job_lists_thin_parts_where_cycles_renders_them(demo, walk_everywhere):
     """``cvsss render``'s job (and Apply on Render's) on the flash demo switched to Random
-    Walk: its 2-cm top, with the scene's setting (Cycles) on Cycles passes; none when the
+    Walk: its five subsurface objects, 2 (the top) to 20.4 (Suzanne) mean free paths
+    thick, all under 50, with the scene's setting (Cycles) on Cycles passes; none when the
     post renders them, nor on EEVEE passes (EEVEE's own subsurface is not Cycles')."""
     from cvsss.sss_addon.blender.render import job_from_scene
 
@@ -92,7 +93,9 @@ def test_the_job_lists_thin_parts_where_cycles_renders_them(demo, walk_everywher
     def names(**kwargs) -> list[str]:
         return [obj.name for obj, _ in job_from_scene(demo, **kwargs).thin]
 
-    assert names(engine="CYCLES") == ["flash Marble Top"]
+    assert names(engine="CYCLES") == [
+        "flash Marble Top", "flash Suzanne", "flash Marble", "flash Apple", "flash Apple 2"
+    ]  # fmt: skip
     assert names(engine="CYCLES", thin_walks="POST") == []
     assert names(engine="EEVEE") == []
     demo.sss_settings.thin_walks = "POST"
@@ -112,8 +115,15 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
     standalone.render_sequence(demo, (1, 1), tmp_path / "out", ["none"], **kwargs)
     sidecar = json.loads((tmp_path / "out" / "passes" / "0001.json").read_text())
     assert sidecar["thin_parts"] == {
-        "objects": ["flash Marble Top"],
+        "objects": [
+            "flash Apple",
+            "flash Apple 2",
+            "flash Marble",
+            "flash Marble Top",
+            "flash Suzanne",
+        ],  # fmt: skip
         "points": True,
+        "object_mean_free_paths": 50.0,
         "mean_free_paths": 5.0,
         "edge_mean_free_paths": 2.0,
         "edge_max_mean_free_paths": 8.0,
@@ -129,8 +139,8 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
 
 def _walk(name: str, mean_free_path: float = 0.01):
     """Random Walk, weight 1, Radius 1 per channel at Scale 4π × ``mean_free_path``
-    (m): that mean free path (Radius × Scale / 4π); by default 1 cm, so thin means
-    under about 5 cm."""
+    (m): that mean free path (Radius × Scale / 4π); by default 1 cm, so a thin object
+    is one under 50 cm and a thin point one within 5 cm of its far side."""
     material = bpy.data.materials.new(name)
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.subsurface_method = "RANDOM_WALK"
@@ -219,20 +229,25 @@ def _pass_facing(scene, tmp_path, snapshot, samples: int):
     return read_frame(tmp_path / "out" / "passes" / "0001.exr")
 
 
+# The rims' widths below are Christensen-Burley's: a Random Walk part thin enough for the
+# wider bounds (under 22 mean free paths across) goes to Cycles whole (thin_objects, under
+# 50). Christensen-Burley's rules count in u = 0.4 d (BURLEY_THIN_LENGTH), the bound's
+# fall in d.
+
+
 def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
-    """A 2-m cube of a material with a 20-cm mean free path (ten across: not thin)
-    faces the camera. At a right-angled edge half the inward directions head for the
-    other face, so a point within a fraction of a mean free path of the edge has at
-    least half its rays meet it within the rims' bound (here 0.4 of the cube's
-    thickness: four mean free paths): the pixel column along each side edge,
-    a quarter of a mean free path wide, is left to Cycles (Material Index 0) for most
-    of its pixels, while the face's middle, over three mean free paths from any edge,
+    """A 2-m cube of a Christensen-Burley material with d = 50 cm (u = 20 cm; ten u
+    across) faces the camera. At a right-angled edge half the inward directions head for
+    the other face, so a point within a fraction of a u of the edge has at least half its
+    rays meet it within the rims' bound (here 0.4 of the cube's thickness: four u): the
+    pixel column along each side edge, a quarter of a u wide, is left to Cycles (Material
+    Index 0) for most of its pixels, while the face's middle, over three u from any edge,
     is not."""
     verts, faces = [], []
     _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
     mesh = bpy.data.meshes.new("cube")
     mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_walk("walk", mean_free_path=0.2))
+    mesh.materials.append(_burley("disk", 0.5))
     fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
@@ -242,20 +257,19 @@ def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
 
 
 def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
-    """A 2-m cube of a material with a 10-cm mean free path (20 across) faces the
-    camera. Its rims' bound is eight mean free paths (not two, the bound of a part
-    five across: see the next test), and with it a point up to about a mean free path
-    and a half from an edge has at least half its rays meet the other face: of the four
-    pixel columns along each side edge (two mean free paths) most pixels are left to
-    Cycles (with a bound of two, a point beyond half a mean free path seldom is: about
-    a fifth of these pixels would be). The face's middle, over three mean free paths
-    from any edge, takes part. A cube that already had the property, with another
-    value, has it back afterwards."""
+    """The 2-m cube with d = 25 cm (u = 10 cm, 20 u and 8 d across) faces the camera.
+    Its rims' bound is eight u (not two, the bound of a part five u across: see the last
+    of these tests), and with it a point up to about one and a half u from an edge has at
+    least half its rays meet the other face: of the four pixel columns along each side
+    edge (two u) most pixels are left to Cycles (with a bound of two, a point beyond half
+    a u seldom is: about a fifth of these pixels would be). The face's middle, over
+    three u from any edge, takes part. A cube that already had the property, with
+    another value, has it back afterwards."""
     verts, faces = [], []
     _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
     mesh = bpy.data.meshes.new("cube")
     mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_walk("walk", mean_free_path=0.1))
+    mesh.materials.append(_burley("disk", 0.25))
     cube = bpy.data.objects.new("cube", mesh)
     cube[thin_parts.THICKNESS_PROPERTY] = [7.0, 8.0]  # the user's own, an array
     fresh.collection.objects.link(cube)
@@ -267,21 +281,22 @@ def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
     assert list(cube[thin_parts.THICKNESS_PROPERTY]) == [7.0, 8.0]
 
 
-def test_a_part_many_mean_free_paths_thick_has_the_least_rim(fresh, tmp_path, snapshot):
-    """The 2-m cube of the test above, its material's mean free path 5 cm (40 across,
-    beyond the fall of the bound, which ends at 25): its rims' bound is the least, two
-    mean free paths, as for a part five across. A point a mean free path or more from an
-    edge then has its other face at least half the bound away, which few of its four rays
-    reach: the second pixel column in from each side edge (1-2 mean free paths from it)
-    takes part. With the thick part's bound of eight mean free paths about half of
-    those pixels went to Cycles."""
+def test_a_part_many_scattering_lengths_thick_has_the_least_rim(fresh, tmp_path, snapshot):
+    """The 2-m cube with d = 7 cm (28.6 d across, beyond the bound's fall, which ends at
+    25 d; u = 2.8 cm): its rims' bound is the least, two u (5.6 cm), and the band of
+    points with half their rays meeting the other face within it is about a third of
+    the outermost pixel column (5 cm) wide: most of those pixels take part, and every
+    pixel of the next column in. Without the fall the bound would be eight u (22.4 cm)
+    and nearly all of the outermost column's pixels would go to Cycles."""
     verts, faces = [], []
     _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)
     mesh = bpy.data.meshes.new("cube")
     mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_walk("walk", mean_free_path=0.05))
+    mesh.materials.append(_burley("disk", 0.07))
     fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
+    outer = frame.material[4:16, [6, 45]]
+    assert (outer == 1).sum() >= 2 * outer.size // 3, outer
     assert (frame.material[4:16, [7, 44]] == 1).all(), frame.material[4:16]
     assert (frame.material[4:16, 20:32] == 1).all(), frame.material[4:16]
 
@@ -300,18 +315,17 @@ def test_the_rim_bound_follows_the_thickness():
         assert thin_parts.rim_bound(thickness, 1.0, 2.5) == pytest.approx(bound)
 
 
-def test_a_part_a_few_mean_free_paths_thick_is_no_rim_inside(fresh, tmp_path, snapshot):
-    """A slab 60 cm deep (six mean free paths of 10 cm: not thin) faces the camera.
-    With the thick part's bound of eight mean free paths, its far side is within it
-    for 44 % of the inward rays (cos θ > 6/8), so about half the face's pixels would
-    have half their rays meet it and go to Cycles; the bound is 0.4 of the slab's
-    thickness instead (2.4 mean free paths), which the far side is beyond for every
-    ray: the face's middle takes part."""
+def test_a_part_a_few_scattering_lengths_thick_is_no_rim_inside(fresh, tmp_path, snapshot):
+    """A slab 60 cm deep (six u of 10 cm, d = 25 cm) faces the camera. With the thick
+    part's bound of eight u, its far side is within it for 44 % of the inward rays
+    (cos θ > 6/8), so about half the face's pixels would have half their rays meet it
+    and go to Cycles; the bound is 0.4 of the slab's thickness instead (2.4 u), which
+    the far side is beyond for every ray: the face's middle takes part."""
     verts, faces = [], []
     _box(verts, -1.0, 1.0, 0.0, 0.6, -1.0, 1.0, faces)  # its face at y = 0, 0.6 m deep
     mesh = bpy.data.meshes.new("slab")
     mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_walk("walk", mean_free_path=0.1))
+    mesh.materials.append(_burley("disk", 0.25))
     fresh.collection.objects.link(bpy.data.objects.new("slab", mesh))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     assert (frame.material[4:16, 16:36] == 1).all(), frame.material[4:16]
