@@ -177,6 +177,29 @@ def cycles_renders(who: str, engine: str | None) -> bool:
     return engine == "CYCLES" and who == "CYCLES"
 
 
+def cycles_renders_all(scene, engine: str | None, who: str | None = None) -> bool:
+    """Whether Cycles renders every part that takes part in subsurface (``who`` as in
+    :func:`note`): every participating material sits, in every object's slots, only on
+    objects thin for it. The post would then change no pixel, and Apply on Render lets
+    Blender render the frame as without the add-on. Conservative: an object hidden from
+    the render, a non-mesh object or a material seen only through instancing (not in a
+    slot of the scene's objects) carrying one of them answers False."""
+    who = who or scene.sss_settings.thin_walks
+    if not cycles_renders(who, engine):
+        return False
+    names = {m.name for m in sss_materials.participating(scene)}
+    thin = {obj.name: {m.name for m in mats} for obj, mats in thin_objects(scene)}
+    carried = set()
+    for obj in scene.objects:
+        for slot in getattr(obj, "material_slots", ()):
+            name = None if slot.material is None else slot.material.name
+            if name in names:
+                if name not in thin.get(obj.name, ()):
+                    return False
+                carried.add(name)
+    return bool(names) and carried == names
+
+
 def note(scene, engine: str | None, who: str | None = None) -> list[str]:
     """The panel's and the log's note on thin parts (none without them); ``who``
     defaults to the scene's setting."""
@@ -184,6 +207,12 @@ def note(scene, engine: str | None, who: str | None = None) -> list[str]:
     thin = [obj.name for obj, _ in thin_objects(scene)]
     if not thin:
         return []
+    if cycles_renders_all(scene, engine, who):
+        return [
+            f"every subsurface object is thin for Random Walk (under "
+            f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): Cycles renders the "
+            "frame as without the add-on"
+        ]
     names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
     head = (
         f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "

@@ -285,13 +285,17 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene, walk_everywhere):
     """The flash demo's subsurface objects, switched to Random Walk, are 2 (the marble
     table top, 2 cm) to 20.4 (Suzanne) mean free paths of their material thick (the
     marble's 1 cm in red, the demo's D_MAX): all five under 50. Only with Random Walk
-    are they noted, in the scene's order; the note says who renders them. The top made
-    60 cm thick (60 mean free paths) drops out of it."""
+    are they noted, in the scene's order; the note says who renders them (with Cycles,
+    all of them: the frame as without the add-on). The top made 60 cm thick (60 mean free
+    paths) drops out of the list, and the post has a part to render again."""
     head = (
         "'flash Marble Top', 'flash Suzanne', 'flash Marble' and 2 more are thin for Random "
         "Walk (under 50 mean free paths across): "
     )
-    cycles = head + "Cycles renders their subsurface"
+    cycles = (  # with every part thin, no session: Blender renders as without the add-on
+        "Every subsurface object is thin for Random Walk (under 50 mean free paths across): "
+        "Cycles renders the frame as without the add-on"
+    )
     post = (
         head + "Cycles loses light through the far side, the post keeps it (brighter than Cycles)"
     )
@@ -313,6 +317,46 @@ def test_the_panel_notes_parts_thin_for_random_walk(scene, walk_everywhere):
     ]
 
 
+def _skin_thick() -> None:
+    """Suzanne's skin three times less translucent (its Subsurface Scale a third): she is
+    61 mean free paths across, over the thin bound of 50, so the post has a part to
+    render while the rest of the flash demo switched to Random Walk stays thin."""
+    bsdf = bpy.data.materials["cvsss Skin"].node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Subsurface Scale"].default_value /= 3.0
+
+
+def test_with_every_part_thin_blender_renders_as_without_the_addon(
+    scene, tmp_path, snapshot, monkeypatch, capsys, walk_everywhere
+):
+    """Switched to Random Walk, every subsurface object of the flash demo is thin (2 to
+    20.4 mean free paths across): Cycles renders all of their subsurface, the post would
+    change no pixel, so Apply on Render starts no session and Blender renders the frame
+    as with the add-on off, bit for bit; the log and the panel say so. With one part
+    thick (Suzanne's skin), the session runs again."""
+    walk_everywhere()
+    started = []
+    monkeypatch.setattr(handlers, "start_session", lambda *a: started.append(a))
+    frames = {}
+    for on in (False, True):
+        scene.sss_settings.apply_on_render = on
+        scene.render.filepath = str(tmp_path / f"on_{on}")
+        before = snapshot[0](scene)
+        assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+        assert snapshot[1](before, snapshot[0](scene)) == []
+        frames[on] = _read(tmp_path / f"on_{on}.exr")
+    assert started == []
+    assert frames[True].keys() == frames[False].keys()
+    for key, pixels in frames[False].items():
+        np.testing.assert_array_equal(frames[True][key], pixels, err_msg=key)
+    said = "every subsurface object is thin for Random Walk (under 50 mean free paths across)"
+    assert said in capsys.readouterr().out
+    assert any(n.lower().startswith(said.lower()) for n in scene_notes(scene))
+    _skin_thick()
+    assert not any(n.lower().startswith(said.lower()) for n in scene_notes(scene))
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    assert len(started) == 1
+
+
 def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, walk_everywhere):
     """Switched to Random Walk, the flash demo's 2-cm marble top is thin. Cycles' walk
     loses light through its far side: at 1024 spp its top returns 0.86 / 0.90 / 0.93 (R /
@@ -320,8 +364,10 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, wa
     while the post keeps 1.00–1.02. Left to Cycles (the default), the delivered top is
     that much darker than the post makes it, most in red, and the user's scene, slots and
     materials are back afterwards. ``cvsss render`` of the same frame composites the
-    same frame (the setting is the scene's, for every way of rendering)."""
+    same frame (the setting is the scene's, for every way of rendering). Suzanne is made
+    thick (:func:`_skin_thick`) so that the post has a part to render."""
     walk_everywhere()
+    _skin_thick()
     scene.frame_set(21)
     scene.cycles.samples = 16
     scene.cycles.use_denoising = False
@@ -363,9 +409,11 @@ def test_a_save_while_finishing_keeps_the_users_materials(
     the marble for the pass render). A save between Blender's render and the finishing
     writes the user's scene: slots, materials and node groups as before the render, no
     copy. The finishing then takes the pass configuration again and delivers the frames
-    a render without the save delivers."""
+    a render without the save delivers. Suzanne is made thick (:func:`_skin_thick`) so
+    that the post has a part to render."""
     monkeypatch.setattr(handlers, "_on_render_thread", lambda: True)
     walk_everywhere()
+    _skin_thick()
     frames = {}
     for saved in (False, True):
         scene.render.filepath = str(tmp_path / f"saved_{saved}" / "f_")

@@ -16,6 +16,7 @@ import threading
 import bpy
 from bpy.app.handlers import persistent
 
+from .. import thin_parts
 from ..errors import RenderError
 from ..internal_renders import rendering_internally
 from .engine import ENGINE, refuse
@@ -66,6 +67,10 @@ def on_render_init(scene, *_args) -> None:
         previous.close()
     if active_session() is not None:
         _stop(scene, "the previous render is still being finished; render again when it is done")
+        return
+    if thin_parts.cycles_renders_all(scene, scene.render.engine):
+        # Nothing for the post to change: Blender renders the frame as without the add-on.
+        log(thin_parts.note(scene, scene.render.engine)[0])
         return
     try:
         start_session(scene, deferred)
