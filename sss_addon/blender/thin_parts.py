@@ -114,7 +114,9 @@ THIN_POINT_SHARE = 0.5
 #: the post's smooth pixels for Cycles' noisier walk. Blender's default cube (500 across)
 #: lost 1.2 dB to the wider band; the same cube made more translucent came out closer
 #: with the wide band up to about 22 across and with the least from 25 (docs/explanation/
-#: accuracy.md §2.3).
+#: accuracy.md §2.3). Since a Random Walk object under THIN_OBJECT_MEAN_FREE_PATHS goes to
+#: Cycles whole, a Random Walk rim always has the least bound; the wider ones serve
+#: Christensen-Burley materials, whose parts have no whole-object rule.
 THIN_EDGE_MEAN_FREE_PATHS = 2.0
 THIN_EDGE_MAX_MEAN_FREE_PATHS = 8.0
 THIN_EDGE_THICKNESS_SHARE = 0.4
