@@ -196,7 +196,7 @@ def render_sequence(
             warmup_frames=warmup_frames,
             thin_walks=thin_walks,
         )
-        for text in thin_parts.note(scene, job.engine, thin_walks):
+        for text in thin_parts.note(scene, job.engine, thin_walks, apply_on_render=False):
             print("note: " + text, file=sys.stderr, flush=True)
         job.range_start = range_start
         job.render_passes = render_passes

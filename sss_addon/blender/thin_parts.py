@@ -208,9 +208,12 @@ def cycles_renders_all(scene, engine: str | None, who: str | None = None) -> boo
     return bool(names) and carried == names
 
 
-def note(scene, engine: str | None, who: str | None = None) -> list[str]:
+def note(
+    scene, engine: str | None, who: str | None = None, apply_on_render: bool = True
+) -> list[str]:
     """The panel's and the log's note on thin parts (none without them); ``who``
-    defaults to the scene's setting."""
+    defaults to the scene's setting. ``apply_on_render`` False: for ``cvsss render``,
+    which renders the passes even when every part is thin."""
     who = who or scene.sss_settings.thin_walks
     thin = [obj.name for obj, _ in thin_objects(scene)]
     if not thin:
@@ -218,8 +221,12 @@ def note(scene, engine: str | None, who: str | None = None) -> list[str]:
     if cycles_renders_all(scene, engine, who):
         return [
             f"every subsurface object is thin for Random Walk (under "
-            f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): Cycles renders the "
-            "frame as without the add-on"
+            f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): "
+            + (
+                "Cycles renders the frame as without the add-on"
+                if apply_on_render
+                else "Cycles renders all of their subsurface, the post changes no pixel"
+            )
         ]
     names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
     head = (

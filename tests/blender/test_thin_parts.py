@@ -102,9 +102,11 @@ def test_the_job_lists_thin_parts_where_cycles_renders_them(demo, walk_everywher
     assert names(engine="CYCLES") == [] and names(engine="CYCLES", thin_walks="CYCLES")
 
 
-def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhere):
+def test_passes_made_with_another_choice_are_stale(demo, tmp_path, capsys, walk_everywhere):
     """The pass sidecar names the parts Cycles rendered; reusing those passes when the
-    post is to render them instead is refused, as for another camera or material."""
+    post is to render them instead is refused, as for another camera or material. Every
+    part is thin: ``cvsss render`` still renders the passes, and its note says the post
+    changes no pixel (Apply on Render's would say it leaves the frame to Blender)."""
     import json
 
     from cvsss.sss_addon.blender import standalone
@@ -114,6 +116,10 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, walk_everywhe
     kwargs = {"engine": "CYCLES", "reference": False, "log": None, "passes_only": True}
     standalone.render_sequence(demo, (1, 1), tmp_path / "out", ["none"], **kwargs)
     sidecar = json.loads((tmp_path / "out" / "passes" / "0001.json").read_text())
+    assert (
+        "note: every subsurface object is thin for Random Walk (under 50 mean free paths "
+        "across): Cycles renders all of their subsurface, the post changes no pixel"
+    ) in capsys.readouterr().err
     assert sidecar["thin_parts"] == {
         "objects": [
             "flash Apple",
