@@ -458,7 +458,9 @@ def read_frame(
         value AOV ``cvsss_weight`` on the pixels of materials whose sidecar
         entry says ``"weight_linked": true`` (NaN elsewhere), else None;
         ``indirect`` = Diffuse Indirect when present, else None;
-        ``objects`` = Object Index when present, else None. Where the value
+        ``objects`` = Object Index when present, else None. A Material Index
+        past the sidecar's slots (a thin object's copy, numbered apart for the
+        user's own pass) reads as 0. Where the value
         AOV ``cvsss_thin`` (thin points, whose subsurface Cycles rendered) is at
         least :data:`THIN_PIXEL_SHARE`, ``material`` is 0: the post leaves those
         pixels as rendered. The
@@ -515,6 +517,12 @@ def read_frame(
         on = np.isin(np.rint(np.nan_to_num(arrays["Material Index"])), linked)
         sss_weight = np.where(on, arrays["SSS Weight"], np.nan).astype(np.float32)
     material = arrays["Material Index"]
+    top = max(sidecar.materials, default=0)
+    if material.size and np.nanmax(material) > top + 0.5:
+        # Numbers past the sidecar's table are materials that take no part (the copies
+        # the pass render gives thin objects, numbered apart for the user's own
+        # Material Index pass).
+        material = np.where(material > top + 0.5, 0, material)
     if "Thin Points" in arrays:
         # Applied on reading rather than rewritten into the file after the render,
         # which would write every pass file twice.

@@ -409,6 +409,11 @@ class PassSetup(SceneSetup):
                 material.pass_index = 0
         for slot, material in enumerate(self.materials, 1):
             material.pass_index = slot
+        # Thin objects' copies take no part; numbered past the table (the pass reader
+        # reads such a number as 0), so the user's Material Index is found again for
+        # their pixels (apply_on_render.user_render).
+        for number, name in enumerate(self._thin.copies, len(self.materials) + 1):
+            bpy.data.materials[name].pass_index = number
         number_objects(self.scene, self.materials)
         if self.engine != "CYCLES":
             self._add_material_aov()

@@ -500,6 +500,11 @@ class CyclesRendersThin(contextlib.AbstractContextManager):
                 node.node_tree = done[group.name]
         return copy
 
+    @property
+    def copies(self) -> list[str]:
+        """The copies' names (while entered), each once."""
+        return list(self._materials)
+
     def restore(self) -> None:
         """Slots back, copies removed (safe to call more than once)."""
         for saved in reversed(self._slots):

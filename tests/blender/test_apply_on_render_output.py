@@ -402,6 +402,29 @@ def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, wa
     np.testing.assert_allclose(frames["CYCLES"], composite, rtol=1e-6, atol=1e-7)
 
 
+def test_thin_parts_keep_the_users_material_index(scene, tmp_path, walk_everywhere):
+    """Switched to Random Walk with Suzanne thick (:func:`_skin_thick`), the flash demo's
+    marble and apples are thin: the pass render gives their objects copies of those
+    materials. The multilayer file's Material Index still holds the user's numbers
+    there, as Blender's own render with Apply on Render off writes them."""
+    walk_everywhere()
+    _skin_thick()
+    for index, name in enumerate(("cvsss Marble", "cvsss Apple", "cvsss Skin"), start=5):
+        bpy.data.materials[name].pass_index = index
+    layer = scene.view_layers[0]
+    layer.use_pass_material_index = True
+    channel = layer.name + ".Material Index.X"
+    got = {}
+    for on in (False, True):
+        scene.sss_settings.apply_on_render = on
+        _exr(scene, tmp_path / f"on_{on}", multilayer=True)
+        assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+        got[on] = _read(tmp_path / f"on_{on}.exr")
+    assert channel in got[False], sorted(got[False])
+    assert set(np.unique(got[False][channel])) >= {5.0, 6.0, 7.0}
+    np.testing.assert_array_equal(got[True][channel], got[False][channel])
+
+
 def test_a_save_while_finishing_keeps_the_users_materials(
     scene, tmp_path, snapshot, monkeypatch, walk_everywhere
 ):

@@ -167,9 +167,13 @@ class KeepingPassSetup(PassSetup):
                 table[obj.pass_index] = self._object_index.get(obj.name, obj.pass_index)
             tables["Object Index"] = table
         if "Material Index" in user.passes:
-            table = np.arange(len(self.materials) + 1)
+            copies = self._thin.copies
+            table = np.arange(len(self.materials) + len(copies) + 1)
             for slot, material in enumerate(self.materials, 1):
                 table[slot] = self._pass_index.get(material.name, slot)
+            # A thin object's copy kept the Pass Index of the material it copies.
+            for number, name in enumerate(copies, len(self.materials) + 1):
+                table[number] = self._pass_index.get(name, 0)
             others = _other_material_indices(self._pass_index, self.materials)
             table[0] = others[0] if len(others) == 1 else 0
             tables["Material Index"] = table

@@ -312,6 +312,17 @@ def test_pixels_mostly_of_thin_points_take_no_part(tmp_path):
     np.testing.assert_array_equal(read_frame(tmp_path / "0002.exr").material, 1)
 
 
+def test_material_numbers_past_the_sidecars_slots_take_no_part(tmp_path):
+    """The pass render numbers thin objects' material copies past the sidecar's table
+    (one slot here, 1) so that the user's Material Index can be found again: such a
+    number reads as 0, as a material that takes no part does."""
+    passes = blender_passes()
+    passes["Material Index"]["X"] = np.array([[0, 1, 2, 3, 7]] * 4, np.float32)
+    write_raw(tmp_path / "0001.exr", passes)
+    expected = np.array([[0, 1, 0, 0, 0]] * 4)
+    np.testing.assert_array_equal(read_frame(tmp_path / "0001.exr").material, expected)
+
+
 def test_lighting_sums_direct_and_indirect(tmp_path):
     write_raw(tmp_path / "0001.exr", blender_passes())
     frame = read_frame(tmp_path / "0001.exr")
