@@ -185,17 +185,27 @@ def cycles_renders(who: str, engine: str | None) -> bool:
     return engine == "CYCLES" and who == "CYCLES"
 
 
-def cycles_renders_all(scene, engine: str | None, who: str | None = None) -> bool:
+def cycles_renders_all(scene, engine: str | None, who: str | None = None, materials=None) -> bool:
     """Whether Cycles renders every part that takes part in subsurface (``who`` as in
     :func:`note`): every participating material sits, in every object's slots, only on
     objects thin for it. The post would then change no pixel, and Apply on Render lets
-    Blender render the frame as without the add-on. Conservative: an object hidden from
-    the render, a non-mesh object or a material seen only through instancing (not in a
-    slot of the scene's objects) carrying one of them answers False."""
+    Blender render the frame as without the add-on. ``materials``: the participating
+    ones (:func:`.materials.participating`, which also sees instanced ones); by default
+    those in the scene's objects' slots, which is all the panel reads on a redraw.
+    Conservative: an object hidden from the render, a non-mesh object or a material
+    seen only through instancing (not in a slot of the scene's objects) carrying one of
+    them answers False."""
     who = who or scene.sss_settings.thin_walks
     if not cycles_renders(who, engine):
         return False
-    names = {m.name for m in sss_materials.participating(scene)}
+    if materials is None:
+        materials = {
+            s.material
+            for obj in scene.objects
+            for s in getattr(obj, "material_slots", ())
+            if s.material is not None and sss_materials.participates(s.material)
+        }
+    names = {m.name for m in materials}
     thin = {obj.name: {m.name for m in mats} for obj, mats in thin_objects(scene)}
     carried = set()
     for obj in scene.objects:

@@ -16,6 +16,7 @@ import threading
 import bpy
 from bpy.app.handlers import persistent
 
+from .. import materials as sss_materials
 from .. import thin_parts
 from ..errors import RenderError
 from ..internal_renders import rendering_internally
@@ -68,7 +69,10 @@ def on_render_init(scene, *_args) -> None:
     if active_session() is not None:
         _stop(scene, "the previous render is still being finished; render again when it is done")
         return
-    if thin_parts.cycles_renders_all(scene, scene.render.engine):
+    engine = scene.render.engine
+    if thin_parts.cycles_renders(scene.sss_settings.thin_walks, engine) and (
+        thin_parts.cycles_renders_all(scene, engine, materials=sss_materials.participating(scene))
+    ):
         # Nothing for the post to change: Blender renders the frame as without the add-on.
         log(thin_parts.note(scene, scene.render.engine)[0])
         return
