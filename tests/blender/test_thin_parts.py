@@ -235,6 +235,19 @@ def _pass_facing(scene, tmp_path, snapshot, samples: int):
     return read_frame(tmp_path / "out" / "passes" / "0001.exr")
 
 
+def _facing_box(scene, name: str, depth: float, material):
+    """A box of ``material`` 2 m wide and high, its face at y = 0 (x and z in ±1 m) and
+    ``depth`` deep, linked to ``scene``: what :func:`_pass_facing` looks at."""
+    verts, faces = [], []
+    _box(verts, -1.0, 1.0, 0.0, depth, -1.0, 1.0, faces)
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts, [], faces)
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    return obj
+
+
 # The rims' widths below are Christensen-Burley's: a Random Walk part thin enough for the
 # wider bounds (under 22 mean free paths across) goes to Cycles whole (thin_objects, under
 # 50). Christensen-Burley's rules count in u = 0.4 d (BURLEY_THIN_LENGTH), the bound's
@@ -249,12 +262,7 @@ def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
     pixel column along each side edge, a quarter of a u wide, is left to Cycles (Material
     Index 0) for most of its pixels, while the face's middle, over three u from any edge,
     is not."""
-    verts, faces = [], []
-    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
-    mesh = bpy.data.meshes.new("cube")
-    mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_burley("disk", 0.5))
-    fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
+    _facing_box(fresh, "cube", 2.0, _burley("disk", 0.5))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
     rims = frame.material[4:16, [6, 45]]
@@ -271,14 +279,8 @@ def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
     a u seldom is: about a fifth of these pixels would be). The face's middle, over
     three u from any edge, takes part. A cube that already had the property, with
     another value, has it back afterwards."""
-    verts, faces = [], []
-    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)  # its face at y = 0, x in ±1 m
-    mesh = bpy.data.meshes.new("cube")
-    mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_burley("disk", 0.25))
-    cube = bpy.data.objects.new("cube", mesh)
+    cube = _facing_box(fresh, "cube", 2.0, _burley("disk", 0.25))
     cube[thin_parts.THICKNESS_PROPERTY] = [7.0, 8.0]  # the user's own, an array
-    fresh.collection.objects.link(cube)
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
     rims = frame.material[4:16, [6, 7, 8, 9, 42, 43, 44, 45]]
@@ -294,12 +296,7 @@ def test_a_part_many_scattering_lengths_thick_has_the_least_rim(fresh, tmp_path,
     the outermost pixel column (5 cm) wide: most of those pixels take part, and every
     pixel of the next column in. Without the fall the bound would be eight u (22.4 cm)
     and nearly all of the outermost column's pixels would go to Cycles."""
-    verts, faces = [], []
-    _box(verts, -1.0, 1.0, 0.0, 2.0, -1.0, 1.0, faces)
-    mesh = bpy.data.meshes.new("cube")
-    mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_burley("disk", 0.07))
-    fresh.collection.objects.link(bpy.data.objects.new("cube", mesh))
+    _facing_box(fresh, "cube", 2.0, _burley("disk", 0.07))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     outer = frame.material[4:16, [6, 45]]
     assert (outer == 1).sum() >= 2 * outer.size // 3, outer
@@ -327,12 +324,7 @@ def test_a_part_a_few_scattering_lengths_thick_is_no_rim_inside(fresh, tmp_path,
     (cos θ > 6/8), so about half the face's pixels would have half their rays meet it
     and go to Cycles; the bound is 0.4 of the slab's thickness instead (2.4 u), which
     the far side is beyond for every ray: the face's middle takes part."""
-    verts, faces = [], []
-    _box(verts, -1.0, 1.0, 0.0, 0.6, -1.0, 1.0, faces)  # its face at y = 0, 0.6 m deep
-    mesh = bpy.data.meshes.new("slab")
-    mesh.from_pydata(verts, [], faces)
-    mesh.materials.append(_burley("disk", 0.25))
-    fresh.collection.objects.link(bpy.data.objects.new("slab", mesh))
+    _facing_box(fresh, "slab", 0.6, _burley("disk", 0.25))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     assert (frame.material[4:16, 16:36] == 1).all(), frame.material[4:16]
 
