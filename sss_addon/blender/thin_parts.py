@@ -185,37 +185,51 @@ def cycles_renders(who: str, engine: str | None) -> bool:
     return engine == "CYCLES" and who == "CYCLES"
 
 
-def cycles_renders_all(scene, engine: str | None, who: str | None = None, materials=None) -> bool:
+def cycles_renders_all(
+    scene, engine: str | None, who: str | None = None, materials=None, thin=None
+) -> bool:
     """Whether Cycles renders every part that takes part in subsurface (``who`` as in
     :func:`note`): every participating material sits, in every object's slots, only on
     objects thin for it. The post would then change no pixel, and Apply on Render lets
     Blender render the frame as without the add-on. ``materials``: the participating
     ones (:func:`.materials.participating`, which also sees instanced ones); by default
     those in the scene's objects' slots, which is all the panel reads on a redraw.
+    ``thin``: :func:`thin_objects`' answer, when the caller has it.
     Conservative: an object hidden from the render, a non-mesh object or a material
     seen only through instancing (not in a slot of the scene's objects) carrying one of
     them answers False."""
     who = who or scene.sss_settings.thin_walks
     if not cycles_renders(who, engine):
         return False
-    if materials is None:
-        materials = {
-            s.material
-            for obj in scene.objects
-            for s in getattr(obj, "material_slots", ())
-            if s.material is not None and sss_materials.participates(s.material)
-        }
-    names = {m.name for m in materials}
-    thin = {obj.name: {m.name for m in mats} for obj, mats in thin_objects(scene)}
+    thin_names = {
+        obj.name: {m.name for m in mats}
+        for obj, mats in (thin_objects(scene) if thin is None else thin)
+    }
     carried = set()
     for obj in scene.objects:
         for slot in getattr(obj, "material_slots", ()):
-            name = None if slot.material is None else slot.material.name
-            if name in names:
-                if name not in thin.get(obj.name, ()):
-                    return False
-                carried.add(name)
-    return bool(names) and carried == names
+            material = slot.material
+            if material is None or not sss_materials.participates(material):
+                continue
+            if material.name not in thin_names.get(obj.name, ()):
+                return False
+            carried.add(material.name)
+    wanted = carried if materials is None else {m.name for m in materials}
+    return bool(carried) and carried >= wanted
+
+
+def all_thin_note(apply_on_render: bool = True) -> str:
+    """The note when :func:`cycles_renders_all`: Apply on Render steps aside; ``cvsss
+    render`` (``apply_on_render`` False) still renders the passes."""
+    return (
+        f"every subsurface object is thin for Random Walk (under "
+        f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): "
+        + (
+            "Cycles renders the frame as without the add-on"
+            if apply_on_render
+            else "Cycles renders all of their subsurface, the post changes no pixel"
+        )
+    )
 
 
 def note(
@@ -225,19 +239,12 @@ def note(
     defaults to the scene's setting. ``apply_on_render`` False: for ``cvsss render``,
     which renders the passes even when every part is thin."""
     who = who or scene.sss_settings.thin_walks
-    thin = [obj.name for obj, _ in thin_objects(scene)]
-    if not thin:
+    found = thin_objects(scene)
+    if not found:
         return []
-    if cycles_renders_all(scene, engine, who):
-        return [
-            f"every subsurface object is thin for Random Walk (under "
-            f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): "
-            + (
-                "Cycles renders the frame as without the add-on"
-                if apply_on_render
-                else "Cycles renders all of their subsurface, the post changes no pixel"
-            )
-        ]
+    if cycles_renders_all(scene, engine, who, thin=found):
+        return [all_thin_note(apply_on_render)]
+    thin = [obj.name for obj, _ in found]
     names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
     head = (
         f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "

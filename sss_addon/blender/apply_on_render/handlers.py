@@ -74,7 +74,7 @@ def on_render_init(scene, *_args) -> None:
         thin_parts.cycles_renders_all(scene, engine, materials=sss_materials.participating(scene))
     ):
         # Nothing for the post to change: Blender renders the frame as without the add-on.
-        log(thin_parts.note(scene, scene.render.engine)[0])
+        log(thin_parts.all_thin_note())
         return
     try:
         start_session(scene, deferred)
