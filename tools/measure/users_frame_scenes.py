@@ -2,11 +2,12 @@
 
 The three demo scenes (demo_blend/scenes.py, Christensen-Burley materials) and
 the independent check scene (docs/checks/flicker_point_light.py, built without
-the demo's helpers, Principled BSDF left at Blender's default Random Walk)
+the demo's helpers, Principled BSDF left at Blender's default Random Walk),
 Blender's default cube (the factory startup file, its material's Subsurface
 Weight set to 1, everything else as Blender has it: Random Walk, radius
 (1, 0.2, 0.1) × 0.05 m, a still at frame 1) and ``monkey``, the same file with
-the cube replaced by a subdivided Suzanne in a skin tone, each saved as ``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
+the cube replaced by a subdivided Suzanne in a skin tone, each saved as
+``OUT/<name>.blend`` with Cycles at ``--samples`` and EEVEE at
 ``--eevee-samples``; Cycles' denoiser is left as the scene has it (``cvsss
 compare`` turns it on for the plain render, as Blender's default does)::
 
@@ -36,7 +37,8 @@ CHECK_SCENE = ROOT / "docs" / "checks" / "flicker_point_light.py"
 
 def build(name: str, path: Path, cube_scale: float | None = None) -> None:
     """The scene ``name`` (a demo scene, ``flicker``, ``cube`` or ``monkey``) in a fresh file, saved
-    at ``path``; ``cube_scale`` sets the cube's Subsurface Scale (m; Blender's 0.05 if None)."""
+    at ``path``; ``cube_scale`` sets the factory material's Subsurface Scale (m; Blender's
+    0.05 if None) on ``cube`` and ``monkey``."""
     if name == "flicker":
         argv = sys.argv
         sys.argv = [str(CHECK_SCENE), str(path)]
@@ -88,8 +90,9 @@ def main() -> None:
     parser.add_argument(
         "--cube-scale",
         type=float,
-        help="the cube's Subsurface Scale in m (Blender's 0.05 by default; the cube is 2 m "
-        "across, 500 mean free paths of its Random Walk at 0.05, 20 at 1.26)",
+        help="the Subsurface Scale in m of cube's and monkey's material (Blender's 0.05 by "
+        "default; the cube is 2 m across, 500 mean free paths of its Random Walk at 0.05, "
+        "20 at 1.26)",
     )
     args = parser.parse_args()
     ensure_registered()
