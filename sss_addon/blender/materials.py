@@ -67,8 +67,16 @@ def live_links(socket) -> list:
 
 
 def _has_weight(node) -> bool:
+    """Whether the node's Subsurface Weight is above 0, linked, or animated or driven
+    (0 at this frame may not be 0 at the next one the render reaches)."""
     socket = node.inputs.get(WEIGHT)
-    return socket is not None and (bool(live_links(socket)) or socket.default_value > 0.0)
+    if socket is None:
+        return False
+    if live_links(socket) or socket.default_value > 0.0:
+        return True
+    anim = getattr(node.id_data, "animation_data", None)
+    path = socket.path_from_id("default_value")
+    return any(fc.data_path == path and not fc.mute for fc in _fcurves(anim))
 
 
 def _source_node(material):
@@ -273,6 +281,24 @@ def scene_materials(scene, view_layer=None) -> list:
 def carries(obj, materials) -> bool:
     """Whether one of ``obj``'s material slots holds one of ``materials`` (a set)."""
     return any(s.material in materials for s in getattr(obj, "material_slots", ()))
+
+
+def slot_materials(scene) -> Iterator:
+    """Materials in the slots of the scene's objects and of the collections they
+    instance: what can be read without evaluating the scene (a panel's redraw)."""
+    seen = set()
+    for obj in scene.objects:
+        objects = [obj]
+        collection = getattr(obj, "instance_collection", None)
+        if obj.instance_type == "COLLECTION" and collection is not None:
+            objects += list(collection.all_objects)
+        for each in objects:
+            if each.name in seen:
+                continue
+            seen.add(each.name)
+            for slot in getattr(each, "material_slots", ()):
+                if slot.material is not None:
+                    yield slot.material
 
 
 def participating(scene, view_layer=None) -> list:

@@ -357,6 +357,49 @@ def test_with_every_part_thin_blender_renders_as_without_the_addon(
     assert len(started) == 1
 
 
+def test_without_subsurface_blender_renders_as_without_the_addon(
+    scene, tmp_path, snapshot, monkeypatch, capsys
+):
+    """Every Principled BSDF at Subsurface Weight 0 (Blender's default material): nothing
+    takes part, so a box left ticked starts no session and Blender renders the frame as
+    with the add-on off, bit for bit, instead of refusing the render; the log and the
+    panel say so. A weight keyframed from 0 (here) to 1 (the next frame) takes part."""
+    nodes = [
+        node
+        for material in bpy.data.materials
+        for node in (material.node_tree.nodes if material.node_tree else ())
+        if node.bl_idname == "ShaderNodeBsdfPrincipled"
+    ]
+    for node in nodes:
+        node.inputs["Subsurface Weight"].default_value = 0.0
+    started = []
+    monkeypatch.setattr(handlers, "start_session", lambda *a: started.append(a))
+    frames = {}
+    for on in (False, True):
+        scene.sss_settings.apply_on_render = on
+        scene.render.filepath = str(tmp_path / f"on_{on}")
+        before = snapshot[0](scene)
+        assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+        assert snapshot[1](before, snapshot[0](scene)) == []
+        frames[on] = _read(tmp_path / f"on_{on}.exr")
+    assert started == []
+    assert frames[True].keys() == frames[False].keys()
+    for key, pixels in frames[False].items():
+        np.testing.assert_array_equal(frames[True][key], pixels, err_msg=key)
+    said = "no material takes part in subsurface scattering"
+    assert said in capsys.readouterr().out
+    assert any(n.lower().startswith(said) for n in scene_notes(scene))
+    weight = nodes[0].inputs["Subsurface Weight"]
+    weight.keyframe_insert("default_value", frame=1)
+    weight.default_value = 1.0
+    weight.keyframe_insert("default_value", frame=2)
+    scene.frame_set(1)
+    assert weight.default_value == 0.0
+    assert not any(n.lower().startswith(said) for n in scene_notes(scene))
+    assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
+    assert len(started) == 1
+
+
 def test_cycles_renders_parts_thin_for_random_walk(scene, tmp_path, snapshot, walk_everywhere):
     """Switched to Random Walk, the flash demo's 2-cm marble top is thin. Cycles' walk
     loses light through its far side: at 1024 spp its top returns 0.86 / 0.90 / 0.93 (R /

@@ -18,9 +18,12 @@ post-processes every frame Blender writes. Handlers (all ``@persistent``):
     the scene, emptied of everything but the camera, keeps the user's output
     settings and runs a copy of the user's compositor: the *output scene*. A
     problem the user can fix (another engine than Cycles or EEVEE, no camera,
-    no subsurface material, multi-view) stops the render with a message: the
-    render engine becomes :class:`.engine.ResultEngine`, which reports the
-    error, so Blender cancels before writing anything.
+    multi-view) stops the render with a message: the render engine becomes
+    :class:`.engine.ResultEngine`, which reports the error, so Blender cancels
+    before writing anything. When the post would change no pixel (no material
+    takes part in subsurface, or Cycles renders every part: :mod:`..thin_parts`),
+    no session starts and Blender renders the frame as without the add-on, with
+    a note in the log and the panel.
 ``render_pre``
     The frame's sidecar (camera, materials) is taken. Output placeholders and
     *Overwrite* off are honoured here, as Blender does before it renders a

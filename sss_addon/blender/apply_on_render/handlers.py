@@ -21,6 +21,7 @@ from .. import thin_parts
 from ..errors import RenderError
 from ..internal_renders import rendering_internally
 from .engine import ENGINE, refuse
+from .notes import NOTHING_TO_DO
 from .session import Session, active_session, forget_history, log, start_session
 
 #: (scene, engine) of a render stopped at render_init, put back at its end.
@@ -70,10 +71,15 @@ def on_render_init(scene, *_args) -> None:
         _stop(scene, "the previous render is still being finished; render again when it is done")
         return
     engine = scene.render.engine
+    # Nothing for the post to change: Blender renders the frame as without the add-on
+    # (a box left ticked must not stop the renders of scenes without subsurface).
+    materials = sss_materials.participating(scene)
+    if not materials:
+        log(NOTHING_TO_DO)
+        return
     if thin_parts.cycles_renders(scene.sss_settings.thin_walks, engine) and (
-        thin_parts.cycles_renders_all(scene, engine, materials=sss_materials.participating(scene))
+        thin_parts.cycles_renders_all(scene, engine, materials=materials)
     ):
-        # Nothing for the post to change: Blender renders the frame as without the add-on.
         log(thin_parts.all_thin_note())
         return
     try:

@@ -76,10 +76,20 @@ def _pass_notes(scene, layer) -> list[str]:
     return notes
 
 
+#: Apply on Render with no material taking part: the add-on steps aside.
+NOTHING_TO_DO = (
+    "no material takes part in subsurface scattering (a Principled BSDF with Subsurface "
+    "Weight > 0): Blender renders the frame as without the add-on"
+)
+
+
 def model_notes(scene) -> list[str]:
     """Where the post's model is known to part from Cycles on this scene, and what
     Apply on Render does about it: objects thin for their Random Walk material
-    (:mod:`.thin_parts`)."""
+    (:mod:`.thin_parts`); no material taking part (:data:`NOTHING_TO_DO`), read from
+    the slots of the objects and of the collections they instance."""
+    if not any(map(sss_materials.participates, sss_materials.slot_materials(scene))):
+        return [NOTHING_TO_DO]
     return thin_parts.note(scene, PASS_ENGINES.get(scene.render.engine))
 
 
