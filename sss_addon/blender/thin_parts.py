@@ -9,12 +9,14 @@ error outweighs what the post adds.
 
 Thin, for an object, reaches well beyond "a few": on every part under 50 mean free
 paths across that was measured, Cycles' walk with its denoiser came out as close to
-the ground truth as the post or closer (:data:`THIN_OBJECT_MEAN_FREE_PATHS`).
+the ground truth as the post or closer (:data:`THIN_OBJECT_MEAN_FREE_PATHS`). A
+Christensen-Burley part 16 to 50 d across goes to Cycles whole as well
+(:data:`BURLEY_OBJECT_D`): the light of its hidden faces reaches through it to the
+face the camera sees, where Cycles' disk probes find it and the post does not.
 
 With *Thin Parts* on Cycles (the default; ``cvsss render
---thin-walks``), the pass render gives each object thin for its Random Walk
-material its own copy of those
-materials, taking no part (``sss_material.mode`` OFF), so Cycles renders
+--thin-walks``), the pass render gives each such object (:func:`thin_objects`) its
+own copy of those materials, taking no part (``sss_material.mode`` OFF), so Cycles renders
 their subsurface as in the user's own render and the post leaves their pixels
 as rendered; a denoised finished frame treats them as the user's denoiser
 would. :class:`CyclesRendersThin` (entered by :class:`.passes.PassSetup`) makes
@@ -59,25 +61,57 @@ THIN_MEAN_FREE_PATHS = 5.0
 #: the post does not see; on thicker ones (75 and more across) the post came out 2-9 dB
 #: closer (docs/explanation/accuracy.md §2.3).
 THIN_OBJECT_MEAN_FREE_PATHS = 50.0
+#: A Christensen-Burley object whose smallest dimension lies in this range of its
+#: material's longest d goes to Cycles whole: every part this size measured (the demo's
+#: marble block and Suzanne at 18-20 d, Blender's default cube made 20-40 d across) came
+#: out closer to the ground truth from Cycles' disk probes with its denoiser at 16 spp
+#: than from the post, by up to 2 dB, the light of the part's hidden faces (a lit top
+#: above the face the camera sees) reaching through it; thicker parts (the torus of
+#: 75 d, the cube of 100 d and more) came out as close or closer from the post. Below
+#: 16 d the post came out closer on the demo's candles, marble tops and apples (2-15 d),
+#: though not on the cube made 5-15 d across (docs/explanation/accuracy.md §2.3).
+BURLEY_OBJECT_D = (16.0, 50.0)
+
+
+def _whole_object_lengths() -> tuple[dict[str, float], dict[str, float]]:
+    """({material: longest mean free path} of the participating Random Walk materials the
+    post models, {material: longest d} of the Christensen-Burley ones), scene units."""
+    walks, burleys = {}, {}
+    for material in bpy.data.materials:
+        if not sss_materials.participates(material):
+            continue
+        path = sss_materials.walk_mean_free_path(material)
+        if path:
+            walks[material.name] = path
+            continue
+        model = sss_materials.own_model(material)
+        d = sss_materials.principled_shape(material) if model and model[0] == "BURLEY" else None
+        if d:
+            burleys[material.name] = float(max(d))
+    return walks, burleys
+
+
+def _goes_whole(smallest: float, name: str, walks: dict, burleys: dict) -> bool:
+    if name in walks:
+        return smallest < THIN_OBJECT_MEAN_FREE_PATHS * walks[name]
+    low, high = BURLEY_OBJECT_D
+    return name in burleys and low * burleys[name] <= smallest < high * burleys[name]
 
 
 def thin_objects(scene) -> list[tuple[object, list]]:
-    """The scene's objects thin for a Random Walk material the post models, each with
-    those materials: [(object, [material, ...])], in the scene's order.
+    """The scene's objects Cycles renders whole, each with those of its materials that
+    make it so: [(object, [material, ...])], in the scene's order.
 
-    Thin: the object's smallest dimension (its bounding box, scene units) is under
-    :data:`THIN_OBJECT_MEAN_FREE_PATHS` times the material's longest channel's mean free
-    path.
+    An object goes whole when its smallest dimension (its bounding box, scene units) is
+    under :data:`THIN_OBJECT_MEAN_FREE_PATHS` times a Random Walk material's longest
+    mean free path (thin), or within :data:`BURLEY_OBJECT_D` times a Christensen-Burley
+    material's longest d. Materials the post models otherwise (a measured preset, an
+    override) never send an object whole.
     Reads settings, slots and sizes only (the panel calls it on every redraw); objects
-    are read only when some participating material has a walk.
+    are read only when some participating material has such a length.
     """
-    walks = {}
-    for material in bpy.data.materials:
-        if sss_materials.participates(material):
-            path = sss_materials.walk_mean_free_path(material)
-            if path:
-                walks[material.name] = path
-    if not walks:
+    walks, burleys = _whole_object_lengths()
+    if not walks and not burleys:
         return []
     found = []
     for obj in scene.objects:
@@ -88,7 +122,7 @@ def thin_objects(scene) -> list[tuple[object, list]]:
             slot.material
             for slot in obj.material_slots
             if slot.material is not None
-            and smallest < THIN_OBJECT_MEAN_FREE_PATHS * walks.get(slot.material.name, 0.0)
+            and _goes_whole(smallest, slot.material.name, walks, burleys)
         ]
         if thin:
             found.append((obj, list(dict.fromkeys(thin))))
@@ -122,7 +156,9 @@ THIN_POINT_SHARE = 0.5
 #: with the wide band up to about 22 across and with the least from 25 (docs/explanation/
 #: accuracy.md §2.3). Since a Random Walk object under THIN_OBJECT_MEAN_FREE_PATHS goes to
 #: Cycles whole, a Random Walk rim always has the least bound; the wider ones serve
-#: Christensen-Burley materials, whose parts have no whole-object rule.
+#: Christensen-Burley parts under BURLEY_OBJECT_D[0] (the candles, the apples), and parts
+#: the whole-object rules do not reach (objects of a linked library or an instanced
+#: collection).
 THIN_EDGE_MEAN_FREE_PATHS = 2.0
 THIN_EDGE_MAX_MEAN_FREE_PATHS = 8.0
 THIN_EDGE_THICKNESS_SHARE = 0.4
@@ -176,6 +212,7 @@ def record(objects: list[str], points: bool) -> dict:
         "edge_thickness_share": THIN_EDGE_THICKNESS_SHARE,
         "edge_fall_mean_free_paths": list(THIN_EDGE_FALL_MEAN_FREE_PATHS),
         "burley_length": BURLEY_THIN_LENGTH,
+        "burley_object_d": list(BURLEY_OBJECT_D),
     }
 
 
@@ -218,44 +255,75 @@ def cycles_renders_all(
     return bool(carried) and carried >= wanted
 
 
-def all_thin_note(apply_on_render: bool = True) -> str:
+def _why(walks: bool, burleys: bool) -> str:
+    """Why objects go to Cycles whole: for Random Walk (``walks``), Christensen-Burley
+    (``burleys``) or both."""
+    walk = f"under {THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across"
+    low, high = BURLEY_OBJECT_D
+    burley = f"{low:g} to {high:g} d across"
+    if walks and burleys:
+        return f"left to Cycles whole (Random Walk {walk}, Christensen-Burley {burley})"
+    if burleys:
+        return f"{burley} for Christensen-Burley"
+    return f"thin for Random Walk ({walk})"
+
+
+def all_thin_note(apply_on_render: bool = True, walks: bool = True, burleys: bool = False) -> str:
     """The note when :func:`cycles_renders_all`: Apply on Render steps aside; ``cvsss
-    render`` (``apply_on_render`` False) still renders the passes."""
-    return (
-        f"every subsurface object is thin for Random Walk (under "
-        f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across): "
-        + (
-            "Cycles renders the frame as without the add-on"
-            if apply_on_render
-            else "Cycles renders all of their subsurface, the post changes no pixel"
-        )
+    render`` (``apply_on_render`` False) still renders the passes. ``walks``,
+    ``burleys``: which rule sent the objects whole (:func:`thin_objects`)."""
+    return f"every subsurface object is {_why(walks, burleys)}: " + (
+        "Cycles renders the frame as without the add-on"
+        if apply_on_render
+        else "Cycles renders all of their subsurface, the post changes no pixel"
     )
+
+
+def kinds(found) -> tuple[list[str], list[str]]:
+    """The names of :func:`thin_objects`' objects sent whole for a Random Walk material,
+    and of the others (for a Christensen-Burley one)."""
+    walks = [
+        obj.name for obj, mats in found if any(sss_materials.walk_mean_free_path(m) for m in mats)
+    ]
+    return walks, [obj.name for obj, _ in found if obj.name not in walks]
+
+
+def _named(names: list[str]) -> str:
+    more = f" and {len(names) - 3} more" if len(names) > 3 else ""
+    return ", ".join(map(repr, names[:3])) + more
 
 
 def note(
     scene, engine: str | None, who: str | None = None, apply_on_render: bool = True
 ) -> list[str]:
-    """The panel's and the log's note on thin parts (none without them); ``who``
-    defaults to the scene's setting. ``apply_on_render`` False: for ``cvsss render``,
-    which renders the passes even when every part is thin."""
+    """The panel's and the log's notes on objects Cycles renders whole (none without
+    them); ``who`` defaults to the scene's setting. ``apply_on_render`` False: for
+    ``cvsss render``, which renders the passes even when every part goes whole."""
     who = who or scene.sss_settings.thin_walks
     found = thin_objects(scene)
-    if not found:
+    walks, burleys = kinds(found)
+    cycles = cycles_renders(who, engine)
+    if not cycles:
+        burleys = []  # the post renders them as any other part, and nothing is left out
+    if not walks and not burleys:
         return []
     if cycles_renders_all(scene, engine, who, thin=found):
-        return [all_thin_note(apply_on_render)]
-    thin = [obj.name for obj, _ in found]
-    names = ", ".join(map(repr, thin[:3])) + (f" and {len(thin) - 3} more" if len(thin) > 3 else "")
-    head = (
-        f"{names} {'is' if len(thin) == 1 else 'are'} thin for Random Walk (under "
-        f"{THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across)"
-    )
-    if cycles_renders(who, engine):
-        return [f"{head}: Cycles renders {'its' if len(thin) == 1 else 'their'} subsurface"]
-    return [
-        f"{head}: Cycles loses light through the far side, the post keeps it (brighter than "
-        "Cycles)"
-    ]
+        return [all_thin_note(apply_on_render, bool(walks), bool(burleys))]
+    notes = []
+    for names, why in ((walks, _why(True, False)), (burleys, _why(False, True))):
+        if not names:
+            continue
+        head = f"{_named(names)} {'is' if len(names) == 1 else 'are'} {why}"
+        if cycles:
+            notes.append(
+                f"{head}: Cycles renders {'its' if len(names) == 1 else 'their'} subsurface"
+            )
+        else:
+            notes.append(
+                f"{head}: Cycles loses light through the far side, the post keeps it "
+                "(brighter than Cycles)"
+            )
+    return notes
 
 
 def thin_point_nodes(material, new: Callable[[object, str], object]) -> None:

@@ -243,6 +243,24 @@ def _walk_everywhere() -> None:
                 node.subsurface_method = "RANDOM_WALK"
 
 
+def _thick_skin_and_marble() -> None:
+    import bpy
+
+    for name in ("cvsss Skin", "cvsss Marble"):
+        bsdf = bpy.data.materials[name].node_tree.nodes["Principled BSDF"]
+        bsdf.inputs["Subsurface Scale"].default_value /= 3.0
+
+
+@pytest.fixture
+def thick_skin_and_marble():
+    """Function () -> None that makes the flash demo's skin and marble three times less
+    translucent (their Subsurface Scale a third): Suzanne (20.4 d of her skin across) and
+    the marble block (20 d) become 61 and 60 d across, beyond the Christensen-Burley sizes
+    Cycles renders whole (16 to 50 d), so the post renders them again; the marble top
+    (2 cm: 6 d) keeps its rims at Cycles."""
+    return _thick_skin_and_marble
+
+
 @pytest.fixture
 def walk_everywhere():
     """Function () -> None that sets every Principled BSDF of the file to Random Walk

@@ -246,8 +246,14 @@ def test_warm_up_only_where_it_pays(scene, tmp_path, capfd):
 
 
 def test_the_panel_says_what_differs_before_the_render(scene):
-    """Each limit shows in the panel's notes exactly when the scene has it."""
-    assert scene_notes(scene) == []
+    """Each limit shows in the panel's notes exactly when the scene has it. The flash
+    demo's Suzanne and marble block (20.4 and 20 d of their Christensen-Burley materials
+    across) go to Cycles whole, which the last note says, with Cycles' passes only."""
+    whole = (
+        "'flash Suzanne', 'flash Marble' are 16 to 50 d across for Christensen-Burley: "
+        "Cycles renders their subsurface"
+    )
+    assert scene_notes(scene) == [whole]
     layer = scene.view_layers[0]
     other = scene.view_layers.new("other")
     other.use = False
@@ -261,13 +267,14 @@ def test_the_panel_says_what_differs_before_the_render(scene):
         "Motion blur is off (the post-process needs the Vector pass)",
         "The compositor's Render Layers of 'other' get no image",
         "The Diffuse passes hold no subsurface light (only Combined does)",
+        whole,
     ]
     # Materials without subsurface that the user numbered apart: the pass render gives
     # them all 0, so the Material Index pass cannot tell them apart.
     others = [m for m in bpy.data.materials if not m.sss_material.participates]
     assert len(others) >= 2
     others[0].pass_index, others[1].pass_index = 3, 4
-    assert scene_notes(scene)[-1].startswith("Material Index: the materials without")
+    assert scene_notes(scene)[-2].startswith("Material Index: the materials without")
     scene.render.use_compositing = False
     assert "The Diffuse passes hold no subsurface light (only Combined does)" not in (
         scene_notes(scene)
@@ -275,8 +282,10 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     # EEVEE has no denoiser; Apply on Render denoises the subsurface pixels it adds.
     denoised = "The subsurface pixels are denoised with OpenImageDenoise (Denoise Subsurface)"
     assert denoised not in scene_notes(scene)
+    assert whole in scene_notes(scene)
     scene.render.engine = "BLENDER_EEVEE"
     assert denoised in scene_notes(scene)
+    assert whole not in scene_notes(scene)  # the post renders every part of EEVEE's passes
     scene.sss_settings.use_denoise_subsurface = False
     assert denoised not in scene_notes(scene)
 

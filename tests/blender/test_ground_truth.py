@@ -204,8 +204,11 @@ def test_error_or_cancel_during_ground_truth_restores_scene(demo, tmp_path, snap
     assert not state_diff(before, scene_state(demo)) and _methods() == methods
 
 
-def test_ground_truth_has_subsurface_on_and_is_cycles(demo, tmp_path, snapshot):
+def test_ground_truth_has_subsurface_on_and_is_cycles(
+    demo, tmp_path, snapshot, thick_skin_and_marble
+):
     """The ground truth differs from the SSS-off Combined where there is subsurface."""
+    thick_skin_and_marble()
     scene_state, state_diff = snapshot
     demo.cycles.samples = SPP  # same noise level in both renders
     job = render.job_from_scene(

@@ -136,6 +136,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, capsys, walk_
         "edge_thickness_share": 0.4,
         "edge_fall_mean_free_paths": [22.0, 25.0],
         "burley_length": 0.4,
+        "burley_object_d": [16.0, 50.0],
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
@@ -182,15 +183,16 @@ def _burley(name: str, d: float):
 
 @pytest.mark.parametrize("method", ["RANDOM_WALK", "BURLEY"])
 def test_thin_points_are_left_to_cycles(fresh, tmp_path, snapshot, method):
-    """One object of two parts: a 1-m block and, beside it, a 2-mm fin, both facing an
-    orthographic camera. The object is not thin (its smallest dimension is 1 m), but
+    """One object of two parts: a 1.5-m block and, beside it, a 2-mm fin, both facing an
+    orthographic camera. The object does not go to Cycles whole (its smallest dimension
+    is 1.5 m: 150 mean free paths, 60 d), but
     every point of the fin has its far side 2 mm behind it: in the pass file the fin's
     pixels take no part (Material Index 0) and the middle of the block's face, over
     5 cm from any other of its faces, does (its slot, 1). Afterwards the scene is as
     before. The same for Christensen-Burley, whose rules count in 0.4 d: with d = 2.5 cm,
     the same 1 cm as the walk's mean free path."""
     verts, faces = [], []
-    _box(verts, 0.2, 1.2, 0.0, 1.0, -0.5, 0.5, faces)  # the block, its face at y = 0
+    _box(verts, 0.2, 1.7, 0.0, 1.5, -0.75, 0.75, faces)  # the block, its face at y = 0
     _box(verts, -1.2, -0.2, 0.0, 0.002, -0.5, 0.5, faces)  # the fin
     mesh = bpy.data.meshes.new("parts")
     mesh.from_pydata(verts, [], faces)
@@ -251,7 +253,7 @@ def _facing_box(scene, name: str, depth: float, material):
 # The rims' widths below are Christensen-Burley's: a Random Walk part thin enough for the
 # wider bounds (under 22 mean free paths across) goes to Cycles whole (thin_objects, under
 # 50). Christensen-Burley's rules count in u = 0.4 d (BURLEY_THIN_LENGTH), the bound's
-# fall in d.
+# fall in d; its parts go whole from 16 to 50 d across, so these are under 16 or over 50.
 
 
 def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
@@ -290,13 +292,14 @@ def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
 
 
 def test_a_part_many_scattering_lengths_thick_has_the_least_rim(fresh, tmp_path, snapshot):
-    """The 2-m cube with d = 7 cm (28.6 d across, beyond the bound's fall, which ends at
-    25 d; u = 2.8 cm): its rims' bound is the least, two u (5.6 cm), and the band of
-    points with half their rays meeting the other face within it is about a third of
-    the outermost pixel column (5 cm) wide: most of those pixels take part, and every
-    pixel of the next column in. Without the fall the bound would be eight u (22.4 cm)
-    and nearly all of the outermost column's pixels would go to Cycles."""
-    _facing_box(fresh, "cube", 2.0, _burley("disk", 0.07))
+    """The 2-m cube with d = 3.5 cm (57 d across: beyond the bound's fall, which ends at
+    25 d, and beyond the sizes Cycles renders whole, under 50 d; u = 1.4 cm): its rims'
+    bound is the least, two u (2.8 cm), and the band of points with half their rays
+    meeting the other face within it is a fraction of the outermost pixel column (5 cm)
+    wide: most of those pixels take part, and every pixel of the next column in. Without
+    the fall the bound would be eight u (11.2 cm) and nearly all of the outermost
+    column's pixels would go to Cycles."""
+    _facing_box(fresh, "cube", 2.0, _burley("disk", 0.035))
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     outer = frame.material[4:16, [6, 45]]
     assert (outer == 1).sum() >= 2 * outer.size // 3, outer
@@ -329,8 +332,35 @@ def test_a_part_a_few_scattering_lengths_thick_is_no_rim_inside(fresh, tmp_path,
     assert (frame.material[4:16, 16:36] == 1).all(), frame.material[4:16]
 
 
+def test_christensen_burley_parts_16_to_50_d_across_go_to_cycles_whole(fresh):
+    """With d = 1 cm (Radius × Scale / 4π), slabs 15.9, 16.1, 30, 49.9 and 50.1 cm thick
+    (1 m wide): the 16.1-, 30- and 49.9-cm ones go to Cycles whole, the 15.9- and
+    50.1-cm ones do not (the range, 16 to 50 d, from the measurements in
+    docs/explanation/accuracy.md §2.3, not from the code). The
+    notes name them, and say who renders them; left alone in the scene, they make
+    Cycles render the frame as without the add-on. On EEVEE's passes the post renders
+    every part, and nothing is noted for them."""
+    disk = _burley("disk", 0.01)
+    for cm in (15.9, 16.1, 30, 49.9, 50.1):
+        _slab(fresh, f"s{cm:g}", disk, cm / 100)
+    bpy.context.view_layer.update()
+    assert [obj.name for obj, _ in thin_parts.thin_objects(fresh)] == ["s16.1", "s30", "s49.9"]
+    assert thin_parts.note(fresh, "CYCLES") == [
+        "'s16.1', 's30', 's49.9' are 16 to 50 d across for Christensen-Burley: Cycles renders "
+        "their subsurface"
+    ]
+    assert thin_parts.note(fresh, "EEVEE") == []
+    for name in ("s15.9", "s50.1"):
+        bpy.data.objects.remove(bpy.data.objects[name])
+    assert thin_parts.note(fresh, "CYCLES") == [
+        "every subsurface object is 16 to 50 d across for Christensen-Burley: Cycles "
+        "renders the frame as without the add-on"
+    ]
+
+
 def test_no_walk_no_thin_parts(fresh):
-    """Christensen-Burley has no mean free path: nothing is thin, whatever its size."""
+    """A Christensen-Burley slab 1.25 d thick (d = 0.8 mm) is no whole-object part: its
+    thin features and rims are found per point. Nothing is thin for Random Walk."""
     material, group = _grouped_walk("burley")
     group.nodes["Principled BSDF"].subsurface_method = "BURLEY"
     _slab(fresh, "slab", material, 0.001)

@@ -16,7 +16,10 @@ def _principled(material):
     return material.node_tree.nodes["Principled BSDF"]
 
 
-def test_constant_and_linked_weight_reach_the_core(demo, tmp_path, snapshot, capfd):
+def test_constant_and_linked_weight_reach_the_core(
+    demo, tmp_path, snapshot, capfd, thick_skin_and_marble
+):
+    thick_skin_and_marble()
     scene_state, state_diff = snapshot
     skin = bpy.data.materials["cvsss Skin"]
     marble = bpy.data.materials["cvsss Marble"]
@@ -72,9 +75,12 @@ def _passes(scene, out):
     return read_frame(out / "passes" / "0001.exr")
 
 
-def test_muted_weight_link_passes_nothing_and_stays_muted(demo, tmp_path, snapshot):
+def test_muted_weight_link_passes_nothing_and_stays_muted(
+    demo, tmp_path, snapshot, thick_skin_and_marble
+):
     """Blender ignores a muted link: the socket's own value is the weight, and the link
     comes back muted after the pass render."""
+    thick_skin_and_marble()
     scene_state, state_diff = snapshot
     skin = bpy.data.materials["cvsss Skin"]
     socket = _principled(skin).inputs["Subsurface Weight"]

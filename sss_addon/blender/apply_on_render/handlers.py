@@ -77,11 +77,12 @@ def on_render_init(scene, *_args) -> None:
     if not materials:
         log(NOTHING_TO_DO)
         return
-    if thin_parts.cycles_renders(scene.sss_settings.thin_walks, engine) and (
-        thin_parts.cycles_renders_all(scene, engine, materials=materials)
-    ):
-        log(thin_parts.all_thin_note())
-        return
+    if thin_parts.cycles_renders(scene.sss_settings.thin_walks, engine):
+        whole = thin_parts.thin_objects(scene)
+        if thin_parts.cycles_renders_all(scene, engine, materials=materials, thin=whole):
+            walks, burleys = thin_parts.kinds(whole)
+            log(thin_parts.all_thin_note(True, bool(walks), bool(burleys)))
+            return
     try:
         start_session(scene, deferred)
     except RenderError as exc:
