@@ -189,6 +189,34 @@ def test_material_inside_node_group(fresh):
     assert inner.inputs["Subsurface Weight"].default_value == 1.0
 
 
+def test_animated_weight_takes_part_and_instanced_materials_are_seen(fresh):
+    """The slots read without evaluating the scene include an instanced collection's
+    objects, which the scene's objects do not. A Subsurface Weight of 0 keyframed to 1
+    at a later frame takes part (the render reaches that frame); muted, it does not."""
+    mat = bpy.data.materials.new("m")
+    socket = mat.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"]
+    hidden = bpy.data.collections.new("hidden")  # not linked to the scene
+    mesh = bpy.data.meshes.new("mesh")
+    mesh.materials.append(mat)
+    hidden.objects.link(bpy.data.objects.new("inside", mesh))
+    assert list(materials.slot_materials(fresh)) == []
+    empty = bpy.data.objects.new("instancer", None)
+    empty.instance_type, empty.instance_collection = "COLLECTION", hidden
+    fresh.collection.objects.link(empty)
+    assert [m.name for m in materials.slot_materials(fresh)] == ["m"]
+    socket.default_value = 0.0
+    assert not materials.participates(mat)
+    socket.keyframe_insert("default_value", frame=1)
+    socket.default_value = 1.0
+    socket.keyframe_insert("default_value", frame=10)
+    fresh.frame_set(2)
+    fresh.frame_set(1)
+    assert socket.default_value == 0.0 and materials.participates(mat)
+    for fcurve in materials._fcurves(mat.node_tree.animation_data):
+        fcurve.mute = True
+    assert not materials.participates(mat)
+
+
 def _addon_classes():
     from cvsss.operators import demo, sequence
     from cvsss.sss_addon.blender import panels, properties
