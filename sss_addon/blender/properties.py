@@ -203,9 +203,10 @@ THIN_WALKS = (
         "CYCLES",
         "Cycles",
         "Cycles renders the subsurface of objects thinner than 50 mean free paths of their "
-        "Random Walk material, and of points near their own far side or an edge (ears, fins, "
-        "rims) of Random Walk and Christensen-Burley materials, as in a plain render: its "
-        "walk and its disk probes reach surface screen space cannot see. Cycles passes only",
+        "Random Walk material or 16 to 50 d across for their Christensen-Burley one, and of "
+        "points near their own far side or an edge (ears, fins, rims) of both, as in a plain "
+        "render: its walk and its disk probes reach surface screen space cannot see. Cycles "
+        "passes only",
     ),
     (
         "POST",
@@ -330,9 +331,9 @@ class SSSSettings(PropertyGroup):
     thin_walks: EnumProperty(
         name="Thin Parts",
         description=(
-            "Who renders the subsurface of objects thin for their Random Walk material and "
-            "of points near their far side or an edge (Cycles reaches surface the camera "
-            "does not see there)"
+            "Who renders the subsurface of objects thin for their Random Walk material or "
+            "16 to 50 d across for their Christensen-Burley one, and of points near their far "
+            "side or an edge (Cycles reaches surface the camera does not see there)"
         ),
         items=THIN_WALKS,
         default="CYCLES",
