@@ -659,7 +659,7 @@ def test_installed_extension_compiles_the_kernels_beside_blenders_render(
     before Blender renders, the first frame's post-process waits only for its frame
     size's build and loads it from the cache (no compile in Blender's process), and the
     process goes on to stamp the cache complete. About a minute: a real cold compile."""
-    thick_skin_and_marble()
+    thick_skin_and_marble()  # no part goes to Cycles whole: the log has no note line
     scene.frame_end = scene.frame_start  # one frame
     scene.render.filepath = str(tmp_path / "farm" / "f_")
     blend = tmp_path / "scene.blend"
