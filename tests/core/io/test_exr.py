@@ -299,10 +299,11 @@ def test_object_index_is_optional_and_round_trips(tmp_path):
 
 def test_pixels_mostly_of_thin_points_take_no_part(tmp_path):
     """Where the pass render's thin-point AOV (cvsss_thin: the share of a pixel's samples
-    whose subsurface Cycles rendered) is at least one half, the Material Index reads as
-    0, so the post leaves the pixel as rendered; elsewhere it reads as written."""
+    whose subsurface Cycles rendered) is at least nine tenths, the Material Index reads
+    as 0, so the post leaves the pixel as rendered; elsewhere (a half, the rule before)
+    it reads as written."""
     passes = blender_passes()
-    thin = np.array([[0.0, 0.25, 0.49, 0.5, 1.0]] * 4, np.float32)
+    thin = np.array([[0.0, 0.5, 0.89, 0.9, 1.0]] * 4, np.float32)
     passes["cvsss_thin"] = {"X": thin}
     write_raw(tmp_path / "0001.exr", passes)
     expected = np.array([[1, 1, 1, 0, 0]] * 4)
