@@ -334,15 +334,11 @@ def _skin_thick() -> None:
     bsdf.inputs["Subsurface Scale"].default_value /= 3.0
 
 
-def test_with_every_part_thin_blender_renders_as_without_the_addon(
-    scene, tmp_path, snapshot, monkeypatch, capsys, walk_everywhere
-):
-    """Switched to Random Walk, every subsurface object of the flash demo is thin (2 to
-    20.4 mean free paths across): Cycles renders all of their subsurface, the post would
-    change no pixel, so Apply on Render starts no session and Blender renders the frame
-    as with the add-on off, bit for bit; the log and the panel say so. With one part
-    thick (Suzanne's skin), the session runs again."""
-    walk_everywhere()
+def _renders_as_without_the_addon(scene, tmp_path, snapshot, monkeypatch) -> list:
+    """Render a still with Apply on Render off, then on: the second starts no session
+    and equals the first bit for bit in every channel, and the scene comes out of each
+    as it went in. Returns the list the stubbed ``start_session`` records its calls in
+    (for renders the test makes afterwards)."""
     started = []
     monkeypatch.setattr(handlers, "start_session", lambda *a: started.append(a))
     frames = {}
@@ -357,6 +353,19 @@ def test_with_every_part_thin_blender_renders_as_without_the_addon(
     assert frames[True].keys() == frames[False].keys()
     for key, pixels in frames[False].items():
         np.testing.assert_array_equal(frames[True][key], pixels, err_msg=key)
+    return started
+
+
+def test_with_every_part_thin_blender_renders_as_without_the_addon(
+    scene, tmp_path, snapshot, monkeypatch, capsys, walk_everywhere
+):
+    """Switched to Random Walk, every subsurface object of the flash demo is thin (2 to
+    20.4 mean free paths across): Cycles renders all of their subsurface, the post would
+    change no pixel, so Apply on Render starts no session and Blender renders the frame
+    as with the add-on off, bit for bit; the log and the panel say so. With one part
+    thick (Suzanne's skin), the session runs again."""
+    walk_everywhere()
+    started = _renders_as_without_the_addon(scene, tmp_path, snapshot, monkeypatch)
     said = "every subsurface object is thin for Random Walk (under 50 mean free paths across)"
     assert said in capsys.readouterr().out
     assert any(n.lower().startswith(said.lower()) for n in scene_notes(scene))
@@ -381,20 +390,7 @@ def test_without_subsurface_blender_renders_as_without_the_addon(
     ]
     for node in nodes:
         node.inputs["Subsurface Weight"].default_value = 0.0
-    started = []
-    monkeypatch.setattr(handlers, "start_session", lambda *a: started.append(a))
-    frames = {}
-    for on in (False, True):
-        scene.sss_settings.apply_on_render = on
-        scene.render.filepath = str(tmp_path / f"on_{on}")
-        before = snapshot[0](scene)
-        assert bpy.ops.render.render(write_still=True) == {"FINISHED"}
-        assert snapshot[1](before, snapshot[0](scene)) == []
-        frames[on] = _read(tmp_path / f"on_{on}.exr")
-    assert started == []
-    assert frames[True].keys() == frames[False].keys()
-    for key, pixels in frames[False].items():
-        np.testing.assert_array_equal(frames[True][key], pixels, err_msg=key)
+    started = _renders_as_without_the_addon(scene, tmp_path, snapshot, monkeypatch)
     said = "no material takes part in subsurface scattering"
     assert said in capsys.readouterr().out
     assert any(n.lower().startswith(said) for n in scene_notes(scene))
