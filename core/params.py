@@ -378,10 +378,10 @@ class SSSParams(_Params):
         advanced=True,
     )
     depth_slope: float = param(
-        2.0,
+        2.5,
         label="Depth Slope",
         help="Follow-surface rule: a sample at planar radius r falls back to the centre when "
-        "its depth differs by more than depth_slope·r (2 follows surfaces tilted up to ~63°)",
+        "its depth differs by more than depth_slope·r (2.5 follows surfaces tilted up to ~68°)",
         unit="scene units of depth per scene unit of radius",
         lo=0.0,
         ui_hi=1e6,

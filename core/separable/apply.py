@@ -396,7 +396,7 @@ def apply(
     kernels: dict[int, SlotKernel] | None = None,
     *,
     seed: int = 0,
-    depth_slope: float = 2.0,
+    depth_slope: float = 2.5,
     geom: Geometry | None = None,
     backend: str = "numpy",
 ) -> tuple[Geometry, np.ndarray, dict]:

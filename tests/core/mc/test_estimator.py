@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from cvsss.core import SSSParams, make_processor
+from cvsss.core.camera import Camera
 from cvsss.core.geometry import geometry_of
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.mc.samples import _pdf, _pdf_at, active_pixels
@@ -157,6 +158,45 @@ def test_offsets_far_beyond_the_image_fall_back_without_warnings(d):
 
 # -- objects (the Object Index pass) ------------------------------------------------------
 KERNELS = {"planar": {}, "surface": {"surface": True}, "cycles": {"surface": True, "disk": True}}
+
+
+def _bent_plane(tilt_degrees: float):
+    """A plane facing an orthographic camera (1 cm pixels) on the left half, bent at
+    the image's middle column into a face tilted ``tilt_degrees`` away from the
+    camera on the right (its depth grows by tan(tilt) cm per column), lit 1 on the
+    right and 0.05 on the left."""
+    frame = flat_plane(d=(0.02, 0.01, 0.005), lighting=shadow_edge())
+    frame.camera = Camera(width=64, height=48, type="ORTHO", ortho_scale=0.64)
+    x = np.arange(64, dtype=np.float64)
+    bend = np.where(x >= 32, np.tan(np.radians(tilt_degrees)) * (x - 31.5) * 0.01, 0.0)
+    frame.depth = np.broadcast_to(2.0 + bend, (48, 64)).astype(np.float32).copy()
+    return frame
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_the_default_slope_follows_a_box_edge_of_66_degrees(kernel):
+    """Light crosses the edge of a box seen from the corner (Blender's cube from its
+    default camera): with the default depth slope the unlit face near a bend of 66°
+    (depth slope tan 66° = 2.25) takes every sample that lands on the lit face, as it
+    does with no depth test at all; at 72° (3.08) the test drops some of them."""
+    left_of_edge = ((np.arange(48 * 64) % 64) >= 28) & ((np.arange(48 * 64) % 64) < 32)
+    default = SSSParams().depth_slope
+    for tilt, followed in ((66.0, True), (72.0, False)):
+        frame = _bent_plane(tilt)
+        light = frame.lighting.reshape(-1, 3)[left_of_edge].astype(np.float64)
+        kw = KERNELS[kernel]
+        _, _, by_default = shade(frame, 64, slope=default, **kw)
+        _, _, unbounded = shade(frame, 64, slope=1e6, **kw)
+        assert (unbounded[left_of_edge][:, 0] > light[:, 0]).all()  # red reaches 4 px
+        if followed:
+            assert np.allclose(by_default[left_of_edge], unbounded[left_of_edge], atol=1e-12)
+        else:
+            assert by_default[left_of_edge].sum() < unbounded[left_of_edge].sum()
+    # The slope of 2, the default before, dropped some of them at 66°.
+    frame = _bent_plane(66.0)
+    _, _, two = shade(frame, 64, slope=2.0, **KERNELS[kernel])
+    _, _, unbounded = shade(frame, 64, slope=1e6, **KERNELS[kernel])
+    assert two[left_of_edge].sum() < unbounded[left_of_edge].sum()
 
 
 def two_objects(right_light: float = 0.2, right_depth: float = 2.0):
