@@ -176,7 +176,7 @@ def _bent_plane(tilt_degrees: float):
 @pytest.mark.parametrize("kernel", KERNELS)
 def test_the_default_slope_follows_a_box_edge_of_66_degrees(kernel):
     """Light crosses the edge of a box seen from the corner (Blender's cube from its
-    default camera): with the default depth slope the unlit face near a bend of 66°
+    default camera): with the default depth slope the dim face next to a bend of 66°
     (depth slope tan 66° = 2.25) takes every sample that lands on the lit face, as it
     does with no depth test at all; at 72° (3.08) the test drops some of them."""
     left_of_edge = ((np.arange(48 * 64) % 64) >= 28) & ((np.arange(48 * 64) % 64) < 32)
