@@ -396,7 +396,7 @@ def apply(
     kernels: dict[int, SlotKernel] | None = None,
     *,
     seed: int = 0,
-    depth_slope: float = 2.5,
+    depth_slope: float,
     geom: Geometry | None = None,
     backend: str = "numpy",
 ) -> tuple[Geometry, np.ndarray, dict]:
@@ -409,7 +409,8 @@ def apply(
     params : SeparableParams
     kernels : per-slot kernels (built if None; pass them to reuse across frames)
     seed : int, jitter stream (with the frame number)
-    depth_slope : float, bilateral tolerance of ``follow="slope"`` (SSSParams.depth_slope)
+    depth_slope : float, bilateral tolerance of ``follow="slope"``: SSSParams.depth_slope,
+        which holds its default (the Monte Carlo estimator follows the same rule)
     geom : Geometry from :func:`cvsss.core.geometry.geometry_of`, optional
     backend : one of core.params.BACKENDS: the passes' implementation (the
         ``separable_pass`` twin: NumPy's :func:`_one_pass`, or :func:`_compiled_pass`
