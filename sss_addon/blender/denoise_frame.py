@@ -17,15 +17,19 @@ first frame): the subsurface effect against Cycles' ground truth rose by 0.3 dB
 the albedo guide (EEVEE's Diffuse Color) moved the effect by −0.12 to +0.07 dB,
 so no guide is asked for.
 
-:func:`denoise_frame` runs Blender's compositor Denoise node (OIDN) in a
-temporary scene — Image nodes holding F and the guides → Denoise → File
-Output (32-bit multilayer EXR) in a temporary folder — and reads the result
-back. Fed Cycles' own Noisy Image and guides, the node gives Cycles' denoised
-Combined bit for bit for every prefilter, guide set and quality (the stored
-Denoising Albedo is the raw guide; the node prefilters it as Cycles does).
-Two settings have no compositor twin: OptiX (the frame gets OIDN) and Cycles'
-"follow scene" quality, which the node would take from the compositor's own
-setting, so the quality is always set explicitly.
+:class:`FrameDenoiser` calls the OIDN library Blender ships (:mod:`.oidn`)
+the way Blender's compositor Denoise node does, and keeps its filters from
+one frame to the next. Where the library cannot be called (or the scene
+denoises on the GPU) it runs the node itself in a temporary scene
+(:func:`compositor_denoise`: Image nodes holding F and the guides → Denoise →
+File Output, a 32-bit multilayer EXR in a temporary folder, read back). Both
+give the node's pixels bit for bit, and fed Cycles' own Noisy Image and
+guides the node gives Cycles' denoised Combined bit for bit for every
+prefilter, guide set and quality (the stored Denoising Albedo is the raw
+guide; it is prefiltered as Cycles does). Two settings have no compositor
+twin: OptiX (the frame gets OIDN) and Cycles' "follow scene" quality, which
+the node would take from the compositor's own setting, so the quality is
+always set explicitly.
 
 Why the finished frame and not the passes: denoising the passes the post
 reads (``--denoise-passes``, :mod:`.denoise`) and compositing them gave
@@ -57,6 +61,7 @@ import OpenEXR
 
 from ...core.io.errors import OutputError
 from ...core.io.exr import quiet_native_stderr, read_channels
+from . import oidn
 from .denoise import denoised_file_output, tree_copy
 from .errors import RenderError
 from .internal_renders import internal_render
@@ -200,6 +205,81 @@ def _remove(block) -> None:
         bpy.data.images.remove(block)
 
 
+class FrameDenoiser:
+    """OIDN on one finished frame after another, as ``settings`` ask.
+
+    On the CPU the device and filters are built once, for the first frame's size, and
+    kept (:class:`.oidn.Filters`): a render of many frames pays for building them once.
+    Where Blender's OIDN library cannot be called, or the settings ask for the GPU, each
+    frame goes through Blender's compositor Denoise node (:func:`compositor_denoise`).
+    Both give the same pixels.
+
+    Parameters
+    ----------
+    settings : DenoiseSettings
+    direct : bool
+        False: always the compositor (tests compare the two).
+
+    Notes
+    -----
+    :meth:`close` (or the end of a ``with`` block) frees OIDN's memory; an object
+    never closed frees it when collected.
+    """
+
+    def __init__(self, settings: DenoiseSettings, direct: bool = True) -> None:
+        self.settings = settings
+        use_albedo, use_normal = GUIDES[settings.guides]
+        self.filters: oidn.Filters | None = None
+        if direct and not settings.gpu and oidn.library() is not None:
+            # A device that fails to start leaves the frames to the compositor.
+            with contextlib.suppress(oidn.OidnError):
+                self.filters = oidn.Filters(
+                    settings.prefilter, settings.quality, use_albedo, use_normal
+                )
+
+    def __enter__(self) -> FrameDenoiser:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.filters is not None:
+            self.filters.close()
+
+    def __call__(
+        self,
+        rgba: np.ndarray,
+        albedo: np.ndarray | None,
+        normal: np.ndarray | None,
+        mask: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The denoised frame; arguments and result as :func:`denoise_frame`'s."""
+        settings = self.settings
+        if settings.subsurface_only and mask is None:
+            raise ValueError("denoising the subsurface pixels only needs their mask")
+        use_albedo, use_normal = GUIDES[settings.guides]
+        if (use_albedo and albedo is None) or (use_normal and normal is None):
+            raise RenderError(
+                "denoising the finished frame needs the pass render's Denoising Albedo and Normal"
+            )
+        albedo = albedo if use_albedo else None
+        normal = normal if use_albedo and use_normal else None
+        if self.filters is not None:
+            try:
+                rgb = self.filters.run(rgba, albedo, normal)
+            except oidn.OidnError as exc:
+                raise RenderError(f"denoising the finished frame failed: {exc}") from None
+        else:
+            rgb = compositor_denoise(rgba, albedo, normal, settings)
+        result = np.array(rgba, dtype=np.float32, copy=True)
+        if settings.subsurface_only:
+            result[..., :3][mask] = rgb[mask]
+        else:
+            result[..., :3] = rgb
+        return result
+
+
 def denoise_frame(
     rgba: np.ndarray,
     albedo: np.ndarray | None,
@@ -207,14 +287,15 @@ def denoise_frame(
     settings: DenoiseSettings,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """OIDN on a finished frame, as ``settings`` ask (Blender's compositor Denoise node).
+    """OIDN on a finished frame, as ``settings`` ask (one frame: :class:`FrameDenoiser`
+    keeps its filters for the next).
 
     Parameters
     ----------
     rgba : (H, W, 3|4) float, linear, top row first
         The finished frame; its alpha (if any) is kept as it is.
     albedo : (H, W, 3) float or None
-        The pass render's Denoising Albedo (raw: the node prefilters it).
+        The pass render's Denoising Albedo (raw: it is prefiltered as Cycles does).
     normal : (H, W, 3) float or None
         The pass render's Denoising Normal.
     settings : DenoiseSettings
@@ -229,18 +310,27 @@ def denoise_frame(
     Raises
     ------
     RenderError
-        The guides the settings ask for are missing, or the render was cancelled.
+        The guides the settings ask for are missing, OIDN failed, or the render was
+        cancelled.
     OutputError
         The compositor wrote no file.
     """
+    with FrameDenoiser(settings) as denoiser:
+        return denoiser(rgba, albedo, normal, mask)
+
+
+def compositor_denoise(
+    rgba: np.ndarray,
+    albedo: np.ndarray | None,
+    normal: np.ndarray | None,
+    settings: DenoiseSettings,
+) -> np.ndarray:
+    """Blender's compositor Denoise node on ``rgba``'s RGB, in a temporary scene.
+
+    Arguments as :func:`denoise_frame`'s (the guides the settings use, or None);
+    returns (H, W, 3) float32, top row first.
+    """
     height, width = rgba.shape[:2]
-    if settings.subsurface_only and mask is None:
-        raise ValueError("denoising the subsurface pixels only needs their mask")
-    use_albedo, use_normal = GUIDES[settings.guides]
-    if (use_albedo and albedo is None) or (use_normal and normal is None):
-        raise RenderError(
-            "denoising the finished frame needs the pass render's Denoising Albedo and Normal"
-        )
     with (
         tempfile.TemporaryDirectory(prefix="cvsss-denoise-frame-") as folder,
         _datablocks() as made,
@@ -256,9 +346,9 @@ def denoise_frame(
         scene.compositing_node_group = tree
         denoise = tree.nodes.new("CompositorNodeDenoise")
         inputs = [("Image", rgba, False)]
-        if use_albedo:
+        if albedo is not None:
             inputs.append(("Albedo", albedo, False))
-        if use_normal:
+        if normal is not None:
             inputs.append(("Normal", normal, True))
         for socket, pixels, non_color in inputs:
             image = _image(f"cvsss denoise {socket}", pixels, non_color)
@@ -284,13 +374,7 @@ def denoise_frame(
             raise OutputError(Path(folder), "the compositor wrote no denoised frame")
         exr = OpenEXR.File(str(written[0]), separate_channels=True)
         channels = {key: np.asarray(c.pixels) for p in exr.parts for key, c in p.channels.items()}
-    result = np.array(rgba, dtype=np.float32, copy=True)
-    for i, channel in enumerate("RGB"):
-        if settings.subsurface_only:
-            result[..., i][mask] = channels[f"F.{channel}"][mask]
-        else:
-            result[..., i] = channels[f"F.{channel}"]
-    return result
+    return np.stack([channels[f"F.{c}"] for c in "RGB"], -1).astype(np.float32)
 
 
 #: The guiding passes of Cycles' denoiser, as the pass render stores them.
@@ -338,13 +422,14 @@ class DenoisedProcessor:
         self.processor = processor
         self.settings = settings
         self.guides = guides
+        self.denoiser = FrameDenoiser(settings)
 
     def process(self, frame):
         result = self.processor.process(frame)
         guides = self.guides(int(frame.number))
         if guides is None:
             return result
-        composite = denoise_frame(result.composite, *guides, self.settings, result.mask)
+        composite = self.denoiser(result.composite, *guides, result.mask)
         return dataclasses.replace(result, composite=composite)
 
     def __getattr__(self, name: str):

@@ -284,8 +284,9 @@ def _image(name: str, rgb: np.ndarray, non_color: bool):
 
 def _oidn(noisy, albedo, normal, prefilter: str, quality: str) -> np.ndarray:
     """Blender's Denoise node on ``noisy`` guided by ``albedo`` and ``normal`` ((H, W, 3)
-    linear, top row first) with the node's ``prefilter`` and ``quality`` items: (H, W, 3)
-    denoised. Built here, apart from the add-on's own code."""
+    linear, top row first; a guide None is left unlinked) with the node's ``prefilter``
+    and ``quality`` items: (H, W, 3) denoised. Built here, apart from the add-on's own
+    code."""
     import bpy
     import OpenEXR
 
@@ -299,6 +300,8 @@ def _oidn(noisy, albedo, normal, prefilter: str, quality: str) -> np.ndarray:
             scene.compositing_node_group = tree
             node = tree.nodes.new("CompositorNodeDenoise")
             for socket, pixels in (("Image", noisy), ("Albedo", albedo), ("Normal", normal)):
+                if pixels is None:
+                    continue
                 images.append(_image(socket, pixels, socket == "Normal"))
                 source = tree.nodes.new("CompositorNodeImage")
                 source.image = images[-1]

@@ -98,7 +98,8 @@ def instrument() -> None:
     session = aor_session.Session
     session.warm_up_steps = _timed_steps("warm-up", session.warm_up_steps)
     session.process_next = _timed("post-process (incl. denoise)", session.process_next)
-    aor_session.denoise_frame = _timed("  of which denoise", aor_session.denoise_frame)
+    denoiser = aor_session.FrameDenoiser
+    denoiser.__call__ = _timed("  of which denoise", denoiser.__call__)
     session.deliver_next = _timed("delivery", session.deliver_next)
     session.display = _timed("delivery", session.display)
 

@@ -33,7 +33,7 @@ from ... import precompile
 from .. import materials as sss_materials
 from ..autoexec import warning as skipped_python
 from ..console import StdoutFilter
-from ..denoise_frame import denoise_frame, guides_of
+from ..denoise_frame import FrameDenoiser, guides_of
 from ..errors import RenderError
 from ..images import show_result
 from ..passes import (
@@ -162,6 +162,8 @@ class Session:
         self.method = self.job.methods[0]
         # The scene's denoiser, for the finished frames (then the passes are not denoised).
         self.denoise = self.job.denoise
+        # Built once for the whole render (OIDN's filters), freed by close().
+        self.denoiser = None if self.denoise is None else FrameDenoiser(self.denoise)
         self.warmup = int(settings.warmup_frames) if warm_up_pays(self.method) else 0
         self.step = max(1, int(scene.frame_step))
         r = scene.render
@@ -464,7 +466,7 @@ class Session:
         if self.denoise is not None:
             noisy = rgba
             guides = guides_of(channels, self.job.view_layer.name)
-            rgba = denoise_frame(noisy, *guides, self.denoise, result.mask)
+            rgba = self.denoiser(noisy, *guides, result.mask)
         self.last, self.last_noisy = rgba, noisy
         self.paths[frame] = path
         if self.movie or self.deferred:
@@ -638,6 +640,8 @@ class Session:
         try:
             self.restore()
         finally:
+            if self.denoiser is not None:
+                self.denoiser.close()
             self._remove_output()
             for path in self.placeholders:  # frames that never came: as Blender does
                 with contextlib.suppress(OSError):
