@@ -203,7 +203,7 @@ THIN_WALKS = (
         "CYCLES",
         "Cycles",
         "Cycles renders the subsurface of objects thinner than 50 mean free paths of their "
-        "Random Walk material or 16 to 50 d across for their Christensen-Burley one, and of "
+        "Random Walk material or 8 to 50 d across for their Christensen-Burley one, and of "
         "points near their own far side or an edge (ears, fins, rims) of both, as in a plain "
         "render: its walk and its disk probes reach surface screen space cannot see. Cycles "
         "passes only",
@@ -332,7 +332,7 @@ class SSSSettings(PropertyGroup):
         name="Thin Parts",
         description=(
             "Who renders the subsurface of objects thin for their Random Walk material or "
-            "16 to 50 d across for their Christensen-Burley one, and of points near their far "
+            "8 to 50 d across for their Christensen-Burley one, and of points near their far "
             "side or an edge (Cycles reaches surface the camera does not see there)"
         ),
         items=THIN_WALKS,

@@ -10,7 +10,7 @@ error outweighs what the post adds.
 Thin, for an object, reaches well beyond "a few": on every part under 50 mean free
 paths across that was measured, Cycles' walk with its denoiser came out as close to
 the ground truth as the post or closer (:data:`THIN_OBJECT_MEAN_FREE_PATHS`). A
-Christensen-Burley part 16 to 50 d across goes to Cycles whole as well
+Christensen-Burley part 8 to 50 d across goes to Cycles whole as well
 (:data:`BURLEY_OBJECT_D`): the light of its hidden faces reaches through it to the
 face the camera sees, where Cycles' disk probes find it and the post does not.
 
@@ -63,14 +63,16 @@ THIN_MEAN_FREE_PATHS = 5.0
 THIN_OBJECT_MEAN_FREE_PATHS = 50.0
 #: A Christensen-Burley object whose smallest dimension lies in this range of its
 #: material's longest d goes to Cycles whole: every part this size measured (the demo's
-#: marble block and Suzanne at 18-20 d, Blender's default cube made 20-40 d across) came
-#: out closer to the ground truth from Cycles' disk probes with its denoiser at 16 spp
-#: than from the post, by up to 2 dB, the light of the part's hidden faces (a lit top
-#: above the face the camera sees) reaching through it; thicker parts (the torus of
-#: 75 d, the cube of 100 d and more) came out as close or closer from the post. Below
-#: 16 d the post came out closer on the demo's candles, marble tops and apples (2-15 d),
-#: though not on the cube made 5-15 d across (docs/explanation/accuracy.md §2.3).
-BURLEY_OBJECT_D = (16.0, 50.0)
+#: apples at 12-15 d, marble block and Suzanne at 18-20 d, Blender's default cube made
+#: 8.4-40 d across) came out closer to the ground truth from Cycles' disk probes with
+#: its denoiser than from the post, by up to 2 dB (the apples at 320×180 and at 64 spp;
+#: at 128×72 and 16 spp the post had them 0.08 dB closer), the light of the part's
+#: hidden faces (a lit top above the face the camera sees) reaching through it; thicker
+#: parts (the torus of 75 d, the cube of 100 d and more) came out as close or closer
+#: from the post. Below 8 d the post came out closer on the demo's candles and marble
+#: tops (2-7 d), though not on the cube made 5 d across (docs/explanation/accuracy.md
+#: §2.3).
+BURLEY_OBJECT_D = (8.0, 50.0)
 
 
 def _whole_object_lengths() -> tuple[dict[str, float], dict[str, float]]:
@@ -156,7 +158,7 @@ THIN_POINT_SHARE = 0.5
 #: with the wide band up to about 22 across and with the least from 25 (docs/explanation/
 #: accuracy.md §2.3). Since a Random Walk object under THIN_OBJECT_MEAN_FREE_PATHS goes to
 #: Cycles whole, a Random Walk rim always has the least bound; the wider ones serve
-#: Christensen-Burley parts under BURLEY_OBJECT_D[0] (the candles, the apples), and parts
+#: Christensen-Burley parts under BURLEY_OBJECT_D[0] (the candles, the marble tops), and parts
 #: the whole-object rules do not reach (objects of a linked library or an instanced
 #: collection).
 THIN_EDGE_MEAN_FREE_PATHS = 2.0

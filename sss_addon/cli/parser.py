@@ -320,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("cycles", "post"),
         default=None,
         help="who renders the subsurface of objects thinner than 50 mean free paths of their "
-        "Random Walk material or 16 to 50 d across for their Christensen-Burley one, and of "
+        "Random Walk material or 8 to 50 d across for their Christensen-Burley one, and of "
         "points near their own far side or an edge (ears, fins, rims) of both, on Cycles "
         "passes: cycles (as "
         "a plain render; its walk and its disk probes reach surface the post cannot see) or "

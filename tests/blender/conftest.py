@@ -256,7 +256,7 @@ def thick_skin_and_marble():
     """Function () -> None that makes the flash demo's skin and marble three times less
     translucent (their Subsurface Scale a third): Suzanne (20.4 d of her skin across) and
     the marble block (20 d) become 61 and 60 d across, beyond the Christensen-Burley sizes
-    Cycles renders whole (16 to 50 d), so the post renders them again; the marble top
+    Cycles renders whole (8 to 50 d), so the post renders them again; the marble top
     (2 cm: 6 d) keeps its rims at Cycles."""
     return _thick_skin_and_marble
 

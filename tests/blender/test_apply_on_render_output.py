@@ -247,11 +247,12 @@ def test_warm_up_only_where_it_pays(scene, tmp_path, capfd):
 
 def test_the_panel_says_what_differs_before_the_render(scene):
     """Each limit shows in the panel's notes exactly when the scene has it. The flash
-    demo's Suzanne and marble block (20.4 and 20 d of their Christensen-Burley materials
-    across) go to Cycles whole, which the last note says, with Cycles' passes only."""
+    demo's Suzanne, marble block and apples (20.4, 20, 15 and 12 d of their
+    Christensen-Burley materials across) go to Cycles whole, which the last note says,
+    with Cycles' passes only."""
     whole = (
-        "'flash Suzanne', 'flash Marble' are 16 to 50 d across for Christensen-Burley: "
-        "Cycles renders their subsurface"
+        "'flash Suzanne', 'flash Marble', 'flash Apple' and 1 more are 8 to 50 d across "
+        "for Christensen-Burley: Cycles renders their subsurface"
     )
     assert scene_notes(scene) == [whole]
     layer = scene.view_layers[0]
@@ -394,7 +395,9 @@ def test_without_subsurface_blender_renders_as_without_the_addon(
     said = "no material takes part in subsurface scattering"
     assert said in capsys.readouterr().out
     assert any(n.lower().startswith(said) for n in scene_notes(scene))
-    weight = nodes[0].inputs["Subsurface Weight"]
+    # The marble: its top (2 d) is no part Cycles renders whole.
+    marble = bpy.data.materials["cvsss Marble"].node_tree.nodes["Principled BSDF"]
+    weight = marble.inputs["Subsurface Weight"]
     weight.keyframe_insert("default_value", frame=1)
     weight.default_value = 1.0
     weight.keyframe_insert("default_value", frame=2)

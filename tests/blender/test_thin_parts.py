@@ -137,7 +137,7 @@ def test_passes_made_with_another_choice_are_stale(demo, tmp_path, capsys, walk_
         "edge_thickness_share": 0.4,
         "edge_fall_mean_free_paths": [22.0, 25.0],
         "burley_length": 0.4,
-        "burley_object_d": [16.0, 50.0],
+        "burley_object_d": [8.0, 50.0],
     }
     with pytest.raises(RenderError, match="rendered with another thin parts than the scene"):
         standalone.render_sequence(
@@ -265,7 +265,7 @@ def _facing_box(scene, name: str, depth: float, material):
 # The rims' widths below are Christensen-Burley's: a Random Walk part thin enough for the
 # wider bounds (under 22 mean free paths across) goes to Cycles whole (thin_objects, under
 # 50). Christensen-Burley's rules count in u = 0.4 d (BURLEY_THIN_LENGTH), the bound's
-# fall in d; its parts go whole from 16 to 50 d across, so these are under 16 or over 50.
+# fall in d; its parts go whole from 8 to 50 d across, so these are under 8 or over 50.
 
 
 def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
@@ -285,15 +285,16 @@ def test_the_rims_along_edges_are_left_to_cycles(fresh, tmp_path, snapshot):
 
 
 def test_a_thick_parts_rims_are_wider(fresh, tmp_path, snapshot):
-    """The 2-m cube with d = 25 cm (u = 10 cm, 20 u and 8 d across) faces the camera.
-    Its rims' bound is eight u (not two, the bound of a part five u across: see the last
-    of these tests), and with it a point up to about one and a half u from an edge has at
-    least half its rays meet the other face: of the four pixel columns along each side
-    edge (two u) most pixels are mostly rim (with a bound of two, a point beyond half
-    a u seldom is: about a fifth of these pixels would be). The face's middle, over
+    """The 2-m cube with d = 26 cm (u = 10.4 cm, 19.2 u and 7.7 d across: just under the
+    Christensen-Burley sizes Cycles renders whole) faces the camera. Its rims' bound is
+    0.4 of its thickness, 7.7 u (not two, the bound of a part five u across: see the
+    last of these tests), and with it a point up to about one and a half u from an edge
+    has at least half its rays meet the other face: of the four pixel columns along each
+    side edge (two u) most pixels are mostly rim (with a bound of two, a point beyond
+    half a u seldom is: about a fifth of these pixels would be). The face's middle, over
     three u from any edge, takes part. A cube that already had the property, with
     another value, has it back afterwards."""
-    cube = _facing_box(fresh, "cube", 2.0, _burley("disk", 0.25))
+    cube = _facing_box(fresh, "cube", 2.0, _burley("disk", 0.26))
     cube[thin_parts.THICKNESS_PROPERTY] = [7.0, 8.0]  # the user's own, an array
     frame = _pass_facing(fresh, tmp_path, snapshot, samples=16)
     # x = -1 m and +1 m are the outer sides of columns 6 and 45; rows 4-15: z in ±0.3 m.
@@ -344,28 +345,28 @@ def test_a_part_a_few_scattering_lengths_thick_is_no_rim_inside(fresh, tmp_path,
     assert (frame.material[4:16, 16:36] == 1).all(), frame.material[4:16]
 
 
-def test_christensen_burley_parts_16_to_50_d_across_go_to_cycles_whole(fresh):
-    """With d = 1 cm (Radius × Scale / 4π), slabs 15.9, 16.1, 30, 49.9 and 50.1 cm thick
-    (1 m wide): the 16.1-, 30- and 49.9-cm ones go to Cycles whole, the 15.9- and
-    50.1-cm ones do not (the range, 16 to 50 d, from the measurements in
+def test_christensen_burley_parts_8_to_50_d_across_go_to_cycles_whole(fresh):
+    """With d = 1 cm (Radius × Scale / 4π), slabs 7.9, 8.1, 30, 49.9 and 50.1 cm thick
+    (1 m wide): the 8.1-, 30- and 49.9-cm ones go to Cycles whole, the 7.9- and
+    50.1-cm ones do not (the range, 8 to 50 d, from the measurements in
     docs/explanation/accuracy.md §2.3, not from the code). The
     notes name them, and say who renders them; left alone in the scene, they make
     Cycles render the frame as without the add-on. On EEVEE's passes the post renders
     every part, and nothing is noted for them."""
     disk = _burley("disk", 0.01)
-    for cm in (15.9, 16.1, 30, 49.9, 50.1):
+    for cm in (7.9, 8.1, 30, 49.9, 50.1):
         _slab(fresh, f"s{cm:g}", disk, cm / 100)
     bpy.context.view_layer.update()
-    assert [obj.name for obj, _ in thin_parts.thin_objects(fresh)] == ["s16.1", "s30", "s49.9"]
+    assert [obj.name for obj, _ in thin_parts.thin_objects(fresh)] == ["s8.1", "s30", "s49.9"]
     assert thin_parts.note(fresh, "CYCLES") == [
-        "'s16.1', 's30', 's49.9' are 16 to 50 d across for Christensen-Burley: Cycles renders "
+        "'s8.1', 's30', 's49.9' are 8 to 50 d across for Christensen-Burley: Cycles renders "
         "their subsurface"
     ]
     assert thin_parts.note(fresh, "EEVEE") == []
-    for name in ("s15.9", "s50.1"):
+    for name in ("s7.9", "s50.1"):
         bpy.data.objects.remove(bpy.data.objects[name])
     assert thin_parts.note(fresh, "CYCLES") == [
-        "every subsurface object is 16 to 50 d across for Christensen-Burley: Cycles "
+        "every subsurface object is 8 to 50 d across for Christensen-Burley: Cycles "
         "renders the frame as without the add-on"
     ]
 
