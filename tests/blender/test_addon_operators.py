@@ -131,9 +131,9 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
 
 
 def test_render_passes_only_needed_passes_resumable(
-    demo, tmp_path, snapshot, thick_skin_and_marble
+    demo, tmp_path, snapshot, thick_parts
 ):
-    thick_skin_and_marble()
+    thick_parts()
     scene_state, state_diff = snapshot
     scene = demo
     skin = bpy.data.materials["cvsss Skin"]
@@ -500,9 +500,9 @@ def test_eevee_setup_writes_slots_through_an_aov_and_restores(demo, snapshot):
 
 
 @pytest.mark.slow
-def test_eevee_render_reads_like_cycles(demo, tmp_path, thick_skin_and_marble):
+def test_eevee_render_reads_like_cycles(demo, tmp_path, thick_parts):
     """EEVEE passes read like Cycles ones (software GL: ~90 s, the shader compile)."""
-    thick_skin_and_marble()
+    thick_parts()
     demo.sss_settings.engine = "EEVEE"
     demo.sss_settings.frame_end = 1
     assert bpy.ops.sss.render_sequence() == {"FINISHED"}

@@ -652,14 +652,14 @@ def test_blender_b_renders_a_blend_with_apply_on_render(
 
 
 def test_installed_extension_compiles_the_kernels_beside_blenders_render(
-    scene, tmp_path, extension_zip, check_script, monkeypatch, thick_skin_and_marble
+    scene, tmp_path, extension_zip, check_script, monkeypatch, thick_parts
 ):
     """The first render on a machine (an empty numba cache), with the extension installed
     from its zip under Blender's package name: a process of its own starts compiling
     before Blender renders, the first frame's post-process waits only for its frame
     size's build and loads it from the cache (no compile in Blender's process), and the
     process goes on to stamp the cache complete. About a minute: a real cold compile."""
-    thick_skin_and_marble()  # no part goes to Cycles whole: the log has no note line
+    thick_parts()  # no part goes to Cycles whole: the log has no note line
     scene.frame_end = scene.frame_start  # one frame
     scene.render.filepath = str(tmp_path / "farm" / "f_")
     blend = tmp_path / "scene.blend"

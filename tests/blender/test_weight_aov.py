@@ -17,9 +17,9 @@ def _principled(material):
 
 
 def test_constant_and_linked_weight_reach_the_core(
-    demo, tmp_path, snapshot, capfd, thick_skin_and_marble
+    demo, tmp_path, snapshot, capfd, thick_parts
 ):
-    thick_skin_and_marble()
+    thick_parts()
     scene_state, state_diff = snapshot
     skin = bpy.data.materials["cvsss Skin"]
     marble = bpy.data.materials["cvsss Marble"]
@@ -76,11 +76,11 @@ def _passes(scene, out):
 
 
 def test_muted_weight_link_passes_nothing_and_stays_muted(
-    demo, tmp_path, snapshot, thick_skin_and_marble
+    demo, tmp_path, snapshot, thick_parts
 ):
     """Blender ignores a muted link: the socket's own value is the weight, and the link
     comes back muted after the pass render."""
-    thick_skin_and_marble()
+    thick_parts()
     scene_state, state_diff = snapshot
     skin = bpy.data.materials["cvsss Skin"]
     socket = _principled(skin).inputs["Subsurface Weight"]
