@@ -130,9 +130,7 @@ def test_render_sequence_equals_core_and_restores_scene(demo, tmp_path, snapshot
     del ref
 
 
-def test_render_passes_only_needed_passes_resumable(
-    demo, tmp_path, snapshot, thick_parts
-):
+def test_render_passes_only_needed_passes_resumable(demo, tmp_path, snapshot, thick_parts):
     thick_parts()
     scene_state, state_diff = snapshot
     scene = demo

@@ -209,9 +209,7 @@ def test_error_or_cancel_during_ground_truth_restores_scene(demo, tmp_path, snap
     assert not state_diff(before, scene_state(demo)) and _methods() == methods
 
 
-def test_ground_truth_has_subsurface_on_and_is_cycles(
-    demo, tmp_path, snapshot, thick_parts
-):
+def test_ground_truth_has_subsurface_on_and_is_cycles(demo, tmp_path, snapshot, thick_parts):
     """The ground truth differs from the SSS-off Combined where there is subsurface."""
     thick_parts()
     scene_state, state_diff = snapshot

@@ -16,9 +16,7 @@ def _principled(material):
     return material.node_tree.nodes["Principled BSDF"]
 
 
-def test_constant_and_linked_weight_reach_the_core(
-    demo, tmp_path, snapshot, capfd, thick_parts
-):
+def test_constant_and_linked_weight_reach_the_core(demo, tmp_path, snapshot, capfd, thick_parts):
     thick_parts()
     scene_state, state_diff = snapshot
     skin = bpy.data.materials["cvsss Skin"]
@@ -75,9 +73,7 @@ def _passes(scene, out):
     return read_frame(out / "passes" / "0001.exr")
 
 
-def test_muted_weight_link_passes_nothing_and_stays_muted(
-    demo, tmp_path, snapshot, thick_parts
-):
+def test_muted_weight_link_passes_nothing_and_stays_muted(demo, tmp_path, snapshot, thick_parts):
     """Blender ignores a muted link: the socket's own value is the weight, and the link
     comes back muted after the pass render."""
     thick_parts()
