@@ -420,7 +420,6 @@ class DenoisedProcessor:
         guides: Callable[[int], tuple[np.ndarray | None, np.ndarray | None] | None],
     ) -> None:
         self.processor = processor
-        self.settings = settings
         self.guides = guides
         self.denoiser = FrameDenoiser(settings)
 

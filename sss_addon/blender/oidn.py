@@ -72,6 +72,7 @@ _SIGNATURES = {
 }
 
 _library: ctypes.CDLL | None = None
+_version = 0  # the library's OIDN version (10000·major + 100·minor + patch)
 _searched = False
 
 
@@ -97,7 +98,7 @@ def _candidates() -> Iterator[str]:
 def library() -> ctypes.CDLL | None:
     """The OIDN library Blender ships, its functions typed; None where it is missing or
     older than OIDN 2 (looked up once)."""
-    global _library, _searched
+    global _library, _version, _searched
     if _searched:
         return _library
     _searched = True
@@ -115,7 +116,7 @@ def library() -> ctypes.CDLL | None:
         version = lib.oidnGetDeviceInt(device, b"version")
         lib.oidnReleaseDevice(device)
         if version >= MIN_VERSION:
-            _library = lib
+            _library, _version = lib, version
             break
     return _library
 
@@ -157,16 +158,14 @@ class Filters:
         self.prefilter = prefilter
         self.albedo, self.normal = albedo, albedo and normal
         self.device = lib.oidnNewDevice(DEVICE_CPU)
-        self.filters: list[int] = []
+        self.filters: list[int] = []  # in the order run: the guides' prefilters, then the main
         # Released with the object when close() is never called.
         self._finalizer = weakref.finalize(self, _release, lib, self.device, self.filters)
         lib.oidnCommitDevice(self.device)
         self._check()
-        version = lib.oidnGetDeviceInt(self.device, b"version")
-        self.quality = QUALITY["HIGH" if quality == "FAST" and version < FAST_VERSION else quality]
+        self.quality = QUALITY["HIGH" if quality == "FAST" and _version < FAST_VERSION else quality]
         self.size: tuple[int, int] | None = None
         self.images: dict[str, np.ndarray] = {}
-        self.steps: list[int] = []  # the filters in the order run: prefilters, then the main
 
     def _check(self) -> None:
         message = ctypes.c_char_p()
@@ -174,8 +173,9 @@ class Filters:
             text = message.value.decode(errors="replace") if message.value else "unknown error"
             raise OidnError(f"OpenImageDenoise: {text}")
 
-    def _filter(self, images: dict[str, str], **flags: bool) -> int:
-        """A committed "RT" filter reading and writing the named buffers of :attr:`images`."""
+    def _filter(self, images: dict[str, str], **flags: bool) -> None:
+        """A committed "RT" filter reading and writing the named buffers of :attr:`images`,
+        run after those already in :attr:`filters`."""
         lib = self.lib
         handle = lib.oidnNewFilter(self.device, b"RT")
         self.filters.append(handle)
@@ -191,7 +191,6 @@ class Filters:
         lib.oidnSetFilterInt(handle, b"quality", self.quality)
         lib.oidnCommitFilter(handle)
         self._check()
-        return handle
 
     def _build(self, height: int, width: int) -> None:
         for handle in self.filters:
@@ -199,14 +198,12 @@ class Filters:
         self.filters.clear()
         names = ["color", "output"] + ["albedo"] * self.albedo + ["normal"] * self.normal
         self.images = {key: np.zeros((height, width, 3), np.float32) for key in names}
-        accurate = self.prefilter == "ACCURATE"
-        steps = []
-        if accurate:
+        if self.prefilter == "ACCURATE":  # the guides' own filters run first
             for guide in ("albedo", "normal")[: self.albedo + self.normal]:
-                steps.append(self._filter({guide: guide, "output": guide}))
+                self._filter({guide: guide, "output": guide})
         main = {key: key for key in names}
-        steps.append(self._filter(main, hdr=True, cleanAux=self.prefilter != "FAST"))
-        self.steps, self.size = steps, (height, width)
+        self._filter(main, hdr=True, cleanAux=self.prefilter != "FAST")
+        self.size = (height, width)
 
     def run(
         self,
@@ -238,7 +235,7 @@ class Filters:
         for key, pixels in (("color", color), ("albedo", albedo), ("normal", normal)):
             if pixels is not None:
                 self.images[key][...] = pixels[::-1, :, :3]
-        for handle in self.steps:
+        for handle in self.filters:
             self.lib.oidnExecuteFilter(handle)
             self._check()
         return self.images["output"][::-1].copy()
