@@ -35,6 +35,7 @@ from ...core.params import MAX_SPP, ParameterError, SeparableParams, SSSParams, 
 from ...core.profiles import presets
 from ...core.profiles.factory import ProfileChoice
 from . import materials as sss_materials
+from .whole_parts import whole_parts_text
 
 #: Measured materials of the separable-SSS supplementary (seeds/004 section G).
 PRESET_NAMES = presets.names()
@@ -202,8 +203,7 @@ THIN_WALKS = (
     (
         "CYCLES",
         "Cycles",
-        "Cycles renders the subsurface of objects thinner than 50 mean free paths of their "
-        "Random Walk material or 8 to 50 d across for their Christensen-Burley one, and of "
+        f"Cycles renders the subsurface of objects {whole_parts_text()}, and of "
         "points near their own far side or an edge (ears, fins, rims) of both, as in a plain "
         "render: its walk and its disk probes reach surface screen space cannot see. Cycles "
         "passes only",
@@ -331,9 +331,8 @@ class SSSSettings(PropertyGroup):
     thin_walks: EnumProperty(
         name="Thin Parts",
         description=(
-            "Who renders the subsurface of objects thin for their Random Walk material or "
-            "8 to 50 d across for their Christensen-Burley one, and of points near their far "
-            "side or an edge (Cycles reaches surface the camera does not see there)"
+            f"Who renders the subsurface of objects {whole_parts_text()}, and of points near "
+            "their far side or an edge (Cycles reaches surface the camera does not see there)"
         ),
         items=THIN_WALKS,
         default="CYCLES",

@@ -47,32 +47,13 @@ import bpy
 
 from ...core.io.exr import THIN_POINT_AOV
 from . import materials as sss_materials
+from .whole_parts import BURLEY_OBJECT_D, THIN_OBJECT_MEAN_FREE_PATHS
 
 #: A point is thin when its far side lies within this many mean free paths of its Random
 #: Walk material (the thin-feature node of :func:`thin_point_nodes`: an ear, a fin): below
 #: it a free slab still loses a tenth of its light, which the post would keep
 #: (docs/explanation/accuracy.md §2.3).
 THIN_MEAN_FREE_PATHS = 5.0
-#: An object whose smallest dimension is under this many mean free paths of its Random
-#: Walk material is left to Cycles whole: on every part this thin that was measured (the
-#: demo's marble tops, apples, candles, block and Suzanne, Blender's default cube made
-#: 15-50 across) Cycles' walk with its denoiser at 16 spp came out as close to the ground
-#: truth as the post or closer, the walk's light reaching the part's hidden sides, which
-#: the post does not see; on thicker ones (75 and more across) the post came out 2-9 dB
-#: closer (docs/explanation/accuracy.md §2.3).
-THIN_OBJECT_MEAN_FREE_PATHS = 50.0
-#: A Christensen-Burley object whose smallest dimension lies in this range of its
-#: material's longest d goes to Cycles whole: every part this size measured (the demo's
-#: apples at 12-15 d, marble block and Suzanne at 18-20 d, Blender's default cube made
-#: 8.4-40 d across) came out closer to the ground truth from Cycles' disk probes with
-#: its denoiser than from the post, by up to 2 dB (the apples at 320×180 and at 64 spp;
-#: at 128×72 and 16 spp the post had them 0.08 dB closer), the light of the part's
-#: hidden faces (a lit top above the face the camera sees) reaching through it; thicker
-#: parts (the torus of 75 d, the cube of 100 d and more) came out as close or closer
-#: from the post. Below 8 d the post came out closer on the demo's candles and marble
-#: tops (2-7 d), though not on the cube made 5 d across (docs/explanation/accuracy.md
-#: §2.3).
-BURLEY_OBJECT_D = (8.0, 50.0)
 
 
 def _whole_object_lengths() -> tuple[dict[str, float], dict[str, float]]:

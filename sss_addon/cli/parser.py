@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from ...core.methods import METHODS
+from ..blender.whole_parts import whole_parts_text
 from . import bench, compare, studies
 from .params import UserError, add_arguments
 
@@ -319,8 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--thin-walks",
         choices=("cycles", "post"),
         default=None,
-        help="who renders the subsurface of objects thinner than 50 mean free paths of their "
-        "Random Walk material or 8 to 50 d across for their Christensen-Burley one, and of "
+        help=f"who renders the subsurface of objects {whole_parts_text()}, and of "
         "points near their own far side or an edge (ears, fins, rims) of both, on Cycles "
         "passes: cycles (as "
         "a plain render; its walk and its disk probes reach surface the post cannot see) or "

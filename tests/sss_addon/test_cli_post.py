@@ -197,6 +197,19 @@ def test_every_help_prints(capsys):
         assert "usage:" in out, command
 
 
+def test_thin_parts_help_states_the_sizes_cycles_renders_whole(capsys):
+    """`cvsss render --help` states the sizes the thin-parts rule uses (50 mean free
+    paths for Random Walk, 8 to 50 d for Christensen-Burley; accuracy §2.3), without
+    Blender: the parser reads them from the rule's own bpy-free constants."""
+    with pytest.raises(SystemExit):
+        cli.main(["render", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert (
+        "objects thinner than 50 mean free paths of their Random Walk material or 8 to 50 d "
+        "across for their Christensen-Burley one" in out
+    )
+
+
 def test_post_prepares_the_kernels_before_the_first_frame(
     passes, tmp_path, capsys, monkeypatch, no_compile, slow_compile
 ):
