@@ -45,6 +45,12 @@ TEMPORAL_MODES = ("multiplicative", "subtractive")
 #: Implementations of the Monte Carlo sampling step (core.backends.select).
 BACKENDS = ("auto", "numpy", "numba")
 MAX_SPP = 4096
+#: ``contact``: another object hides the surface a sample's centre stands on when it faces
+#: the camera this many times more squarely (|n·v|) than the centre does: a block seen
+#: head-on on a table top seen at a slant. Above 1, so that two surfaces that face the
+#: camera alike (whose |n·v| differs only by where they are on the image) never do
+#: (docs/explanation/design.md §5.6).
+CONTACT_FACING = 1.5
 
 #: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
 KERNELS = ("pre_integrated", "svd1", "svd2", "svd3", "svd4", "gaussians", "artist")
@@ -427,14 +433,16 @@ class SSSParams(_Params):
         advanced=True,
     )
     contact: float = param(
-        0.5,
+        0.15,
         label="Contact Height",
         help="With the Object Index pass: a sample never takes light from another object "
-        "(Cycles does not scatter between objects), and one that lands on another object "
-        "within contact·r of the pixel's tangent plane (r the sample's radius) counts as the "
-        "pixel's surface continuing under that object, where it touches it: unlit, as at "
-        "the foot of a block resting on a table. 0 leaves such samples to the hidden-surface "
-        "rules (Mirror Hidden Light, Hidden Light)",
+        "(Cycles does not scatter between objects); one that lands on another object that "
+        "continues the pixel's surface in depth, not below its tangent plane, counts as the "
+        "pixel's surface running on under that object, unlit (as under a block resting on "
+        "a table), where the pixel lies within contact·r of that object's surface (r the "
+        "sample's radius; the two touch there) or that object faces the camera more "
+        "squarely than the pixel (it stands on the pixel's surface and hides it). 0 leaves "
+        "such samples to the hidden-surface rules (Mirror Hidden Light, Hidden Light)",
         unit="fraction of the sample radius",
         lo=0.0,
         ui_hi=1e6,

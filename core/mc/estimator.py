@@ -75,16 +75,25 @@ Cycles' disk probes hit the entry point's own object only: light never
 scatters from one object into another, even of the same material (a marble
 block on a marble table top). With the frame's Object Index pass
 (``geom.objects``) a sample on another object is rejected like one on another
-material. One that lands on another object within ``contact·r`` of the
-centre's tangent plane (the height ``|n·(x_q − x_p)|`` of its point above the
-plane; the depth difference without normals) marks where the centre's surface
-runs on under an object that rests on it — the table top beneath the block,
-the block's foot on the table — and that surface is unlit: the sample counts
-light 0 at its point of the tangent plane (the plane's depth along the
-sample's ray, the centre's area element scaled by the squared depth ratio,
-G = 1), weighed as an accepted sample. On a plane, this is exactly the
-estimator over one surface whose part under the other object is dark
-(tests/core/test_estimator.py). Without the pass every pixel counts as one
+material. One that lands on another object marks where the centre's surface
+runs on hidden under an object that rests on it — the table top beneath the
+block, a slab's front face where it stands on the floor — when the other
+object continues the centre's surface in depth (the depth test a sample of the
+centre's own object passes), lies on the visible side of the centre's tangent
+plane (``n_p·(x_q − x_p) ≥ 0``), and either the centre lies within
+``contact·r`` of the other object's tangent plane at the landing point
+(``|n_q·(x_q − x_p)|``: the two touch near the centre) or the other object
+faces the camera :data:`~core.params.CONTACT_FACING` times more squarely than
+the centre (``|n·v|``: a block seen head-on standing on a top seen at a slant,
+which it hides). So a face standing on a floor seen at a slant darkens only
+near the floor, as in Cycles' renders, while a block standing on a top seen at a
+slant hides all of the top behind it. That surface is unlit: the sample counts light 0 at its point of the
+tangent plane (the plane's depth along the sample's ray, the centre's area
+element scaled by the squared depth ratio, G = 1), weighed as an accepted
+sample. Without normals (planar weights) both planes face the camera and the
+test is the depth difference within ``contact·r``. On a plane, this is exactly
+the estimator over one surface whose part under the other object is dark
+(tests/core/mc/test_estimator.py). Without the pass every pixel counts as one
 object and nothing changes.
 
 Hidden surface
@@ -144,6 +153,7 @@ import numpy as np
 from ..backends.select import threads
 from ..backends.twins import compiled_module, compiled_side, numpy_side
 from ..geometry import Geometry
+from ..params import CONTACT_FACING
 from ..profiles.base import Profile
 from ..profiles.burley import BurleyProfile
 from ..sampling.qmc import DIRECTIONS
@@ -226,9 +236,11 @@ def estimate_distant(
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
         a hidden-surface sample counts with where its mirror image does not apply
         (module doc, *Hidden surface*); 1: the centre's light
-    contact : float >= 0, with ``geom.objects``: a sample on another object within
-        ``contact·r`` of the centre's tangent plane counts, unlit, as the centre's surface
-        continuing under it (module doc, *Objects*); 0: no such samples
+    contact : float >= 0, with ``geom.objects``: a sample on another object that
+        continues the centre's surface, where the centre lies within ``contact·r`` of
+        that object's tangent plane or that object hides the centre's surface, counts,
+        unlit, as the centre's surface continuing under it (module doc, *Objects*); 0:
+        no such samples
     hidden_mirror : bool, a hidden-surface sample reads the pixel opposite it through
         the centre where that pixel is on the centre's surface (module doc, *Hidden
         surface*); before ``hidden_light``; Christensen-Burley slots only
@@ -502,6 +514,7 @@ def _distant_sums_compiled(
         geom.objects is not None,
         inv_k,
         f32(contact),
+        f32(CONTACT_FACING),
         w,
         h,
         f32(full_w),

@@ -16,9 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Geometry
+from ..params import CONTACT_FACING
 from ..profiles.base import Profile
 from ..profiles.burley import BurleyProfile, pdf_from_table
 from ..sampling.qmc import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
+
+_FACING = np.float32(CONTACT_FACING)
 
 # The direction table's columns, contiguous: a strided column costs the sampling
 # loop several times a contiguous one.
@@ -377,7 +380,9 @@ def batch_sums(
             other &= inside
             ok &= ~other
             if touch is not None:
-                touching = _touching(other, qx, qy, zq, zp, centre, r, touch, pix, surf, local)
+                touching = _touching(
+                    other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix, surf, local
+                )
                 if not touching.any():
                     touching = None
         # Hidden surface: a rejected sample on the image that landed on the background,
@@ -561,37 +566,67 @@ def _mirrored(
     return out
 
 
-def _touching(other, qx, qy, zq, zp, centre, r, touch, pix: Pixels, surf, local):
-    """(n,) bool: samples on ``other`` objects within ``touch·r`` of the centre's tangent plane.
+def _touching(other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix: Pixels, surf, local):
+    """(n,) bool: samples on ``other`` objects where the centre's surface runs on hidden
+    under that object, unlit (module doc, *Objects*).
 
-    The height of the landing point above the plane through x_p with the centre's
-    normal, ``|n·(x_q − x_p)|``; without normals (planar weights) the plane faces
-    the camera and the height is the depth difference. Only the ``other`` samples
-    are computed; ``local`` holds each sample's pixel (index into ``pix``).
+    Such a sample follows the centre's surface in depth (``near``: the depth test a
+    sample of the centre's own object passes) and is not below its tangent plane; and
+    either the centre lies within ``touch·r`` of the other
+    object's tangent plane at the landing point (the two touch there), or the other
+    object faces the camera :data:`.params.CONTACT_FACING` times more squarely than the
+    centre (it stands on the centre's surface and hides it). Without normals (planar weights) both planes face the
+    camera and the test is the depth difference within ``touch·r``. Only the ``other``
+    samples are computed; ``local`` holds each sample's pixel (index into ``pix``).
     """
     at = np.flatnonzero(other)
     touching = np.zeros(other.size, bool)
     if at.size == 0:
         return touching
     zq = np.take(zq, at)
-    with np.errstate(invalid="ignore", over="ignore"):
+    lim = touch * np.take(r, at)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         dz = zq - np.take(zp, at)
         if pix.frame is None:
-            h = np.abs(dz)
+            touching[at] = np.abs(dz) <= lim
+            return touching
+        unit_x, unit_y = (np.float32(v) for v in surf.unit)
+        cx, cy = (np.float32(v) for v in surf.centre)
+        sx, sy = np.take(qx, at), np.take(qy, at)
+        centre = np.take(centre[0], at), np.take(centre[1], at)
+        dx, dy = _offset(sx, sy, zq, centre, cx, cy, unit_x, unit_y, surf.ortho)
+        li = np.take(local, at)
+        nx, ny, nz = (np.take(pix.frame[k], li) for k in range(3))
+        qi = np.take(q, at)
+        mx, my, mz = (np.take(surf.normal[:, k], qi) for k in range(3))
+        height = dx * nx
+        height += dy * ny
+        height += dz * nz
+        follows = np.take(near, at) & (height >= 0)
+        if surf.ortho:
+            face_p, face_q = np.abs(nz), np.abs(mz)
         else:
-            unit_x, unit_y = (np.float32(v) for v in surf.unit)
-            cx, cy = (np.float32(v) for v in surf.centre)
-            centre = np.take(centre[0], at), np.take(centre[1], at)
-            dx, dy = _offset(
-                np.take(qx, at), np.take(qy, at), zq, centre, cx, cy, unit_x, unit_y, surf.ortho
-            )
-            li = np.take(local, at)
-            h = dx * np.take(pix.frame[0], li)
-            h += dy * np.take(pix.frame[1], li)
-            h += dz * np.take(pix.frame[2], li)
-            h = np.abs(h)
-        touching[at] = h <= touch * np.take(r, at)
+            face_p = _facing(np.take(px, at), np.take(py, at), nx, ny, nz, cx, cy, unit_x, unit_y)
+            face_q = _facing(sx, sy, mx, my, mz, cx, cy, unit_x, unit_y)
+        apart = dx * mx
+        apart += dy * my
+        apart += dz * mz
+        touching[at] = follows & ((np.abs(apart) <= lim) | (face_q > _FACING * face_p))
     return touching
+
+
+def _facing(sx, sy, nx, ny, nz, cx, cy, unit_x, unit_y) -> np.ndarray:
+    """|n·v| (float32) of normals ``n`` seen along the unit view ray v through the
+    screen points (sx, sy) of a perspective camera: 1 head-on, 0 edge-on."""
+    vx = (sx - cx) * unit_x
+    vy = (sy - cy) * unit_y
+    dot = vx * nx
+    dot += vy * ny
+    dot += nz
+    norm = vx * vx
+    norm += vy * vy
+    norm += np.float32(1.0)
+    return np.abs(dot) / np.sqrt(norm)
 
 
 def _on_plane(touching, zq, area_q, qx, qy, zp, pix: Pixels, surf, local):

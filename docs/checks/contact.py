@@ -5,12 +5,12 @@ Index pass, does the same, and a sample on another object resting on the
 pixel's surface counts that surface as unlit (SSSParams.contact; the module
 doc of core.mc.estimator, *Objects*). This script post-processes the demo's
 ground-truth frames with the model's own noise out of the way (``fixed``,
-256 spp per pixel: within ~0.1 dB of the 1024-spp reference) in five ways:
+256 spp per pixel: within ~0.1 dB of the 1024-spp reference) in seven ways:
 
 - ``no objects``: the Object Index pass dropped (one object per material, as
   before the pass existed);
 - ``contact 0``: objects kept apart, no contact rule;
-- ``contact 0.25`` / ``0.5`` (default) / ``1``.
+- ``contact 0.1`` / ``0.15`` (default) / ``0.25`` / ``0.5`` / ``1``.
 
 It prints, per scene, PSNR against Cycles' ground truth on SSS pixels (mean
 over the ground-truth frames, and its change against ``no objects``) and the
@@ -36,6 +36,8 @@ from cvsss.core.params import SSSParams
 VARIANTS = {
     "no objects": None,
     "contact 0": 0.0,
+    "contact 0.1": 0.1,
+    "contact 0.15": 0.15,
     "contact 0.25": 0.25,
     "contact 0.5": 0.5,
     "contact 1": 1.0,

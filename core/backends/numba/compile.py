@@ -151,6 +151,7 @@ def _compile_sampling(fn) -> None:
         False,
         f32(1.0),
         f32(0.0),
+        f32(1.5),
         1,
         1,
         f32(1.0),

@@ -143,6 +143,7 @@ def _pixel_sums(
     use_obj,
     inv_k,
     touch,
+    facing,
     w,
     h,
     full_w,
@@ -203,9 +204,11 @@ def _pixel_sums(
         (B(q') − B(p) at its planar weight)
     direct : (G, 3) float32, the direct part of B of the Geometry's pixels
     use_obj : bool, the texels' slot carries the object (``slot + K·object``):
-        a sample on another object is rejected (or, within ``touch·r`` of the
-        centre's tangent plane, counts unlit at its point of that plane)
-    inv_k : float32, 1/K (a power of two); touch : float32, SSSParams.contact (0: off)
+        a sample on another object is rejected (or, where the centre's surface runs on
+        hidden under that object, counts unlit at its point of the centre's tangent
+        plane: core.mc.estimator's module doc, *Objects*)
+    inv_k : float32, 1/K (a power of two); touch : float32, SSSParams.contact (0: off);
+    facing : float32, core.params.CONTACT_FACING
     w, h : int, frame (crop) size; full_w, full_h : float32, image size
     ox, oy : int, crop origin; slope : float32, depth slope
     mode : int, PLANAR / PERSPECTIVE / ORTHO; unit_* , cx, cy : float32 camera;
@@ -556,10 +559,12 @@ def _pixel_sums(
                     touching = False
                     area_t = zero
                     if inside and use_touch and np.floor(fb[_ROW_K + j] * inv_k) != obj:
-                        # Another object: does it touch the centre's tangent plane?
+                        # Another object: does the centre's surface run on hidden under it,
+                        # where the two touch (module doc of core.mc.samples, *Objects*)?
                         dz = zq - zp
+                        lim = touch * fb[_ROW_R + j]
                         if mode == PLANAR:
-                            hq = abs(dz)
+                            touching = abs(dz) <= lim
                         else:
                             qx = fb[_ROW_QX + j]
                             qy = fb[_ROW_QY + j]
@@ -569,8 +574,39 @@ def _pixel_sums(
                             else:
                                 dx = ((qx - cx) * zq - (px - cx) * zp) * unit_x
                                 dy = ((qy - cy) * zq - (py - cy) * zp) * unit_y
-                            hq = abs(dx * nx + dy * ny + dz * nz)
-                        touching = hq <= touch * fb[_ROW_R + j]
+                            q8 = np.uint64(q) * _EIGHT
+                            mx = texel[q8 + _SIX]
+                            my = texel[q8 + _SEVEN]
+                            mz = np.float32(
+                                math.copysign(
+                                    np.sqrt(max(one - (mx * mx + my * my), zero)),
+                                    texel[q8 + _FOUR],
+                                )
+                            )
+                            tol = slope * fb[_ROW_R + j]
+                            wpl = pa * fb[_ROW_FX + j] + pb * fb[_ROW_FY + j] + pc
+                            if mode == ORTHO:
+                                on_plane = abs(zq - wpl) <= tol
+                            else:
+                                on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
+                            follows = (abs(dz) <= tol) | on_plane
+                            follows = follows & (dx * nx + dy * ny + dz * nz >= zero)
+                            if mode == ORTHO:
+                                face_p = abs(nz)
+                                face_q = abs(mz)
+                            else:
+                                vx = (px - cx) * unit_x
+                                vy = (py - cy) * unit_y
+                                face_p = abs(vx * nx + vy * ny + nz) / np.sqrt(
+                                    vx * vx + vy * vy + one
+                                )
+                                vx = (qx - cx) * unit_x
+                                vy = (qy - cy) * unit_y
+                                face_q = abs(vx * mx + vy * my + mz) / np.sqrt(
+                                    vx * vx + vy * vy + one
+                                )
+                            near_q = abs(dx * mx + dy * my + dz * mz) <= lim
+                            touching = follows & (near_q | (face_q > facing * face_p))
                     fill = False
                     mirrored = False
                     if touching:

@@ -262,6 +262,76 @@ def test_an_object_off_the_plane_is_not_touching(kernel):
     np.testing.assert_array_equal(a, b)
 
 
+def _crease(top_depth, bottom_depth, *, top_object: int, bottom_object: int):
+    """An orthographic camera (1 cm pixels) on two objects of one material that meet at the
+    row between 23 and 24: rows 0-23 are ``top_object`` at ``top_depth(row)``, rows 24-47
+    ``bottom_object`` at ``bottom_depth(row)`` (metres); lit 1, with a Burley d of 2 cm."""
+    frame = flat_plane(d=(0.02, 0.01, 0.005))
+    frame.camera = Camera(width=64, height=48, type="ORTHO", ortho_scale=0.64)
+    row = np.arange(48, dtype=np.float64)[:, None]
+    depth = np.where(row < 24, top_depth(row), bottom_depth(row))
+    frame.depth = np.broadcast_to(depth, (48, 64)).astype(np.float32).copy()
+    frame.objects = np.broadcast_to(
+        np.where(row < 24, top_object, bottom_object), (48, 64)
+    ).astype(np.int32)
+    return frame
+
+
+#: A table top seen at 60° from the view axis: its depth grows by tan 60° cm per row up.
+def _table(row):
+    return 2.0 + np.tan(np.radians(60.0)) * (47.5 - row) * 0.01
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("kernel", ["surface", "cycles"])
+def test_an_object_standing_on_a_surface_hides_it_unlit(kernel, backend):
+    """A block facing the camera (rows 0-23, object 2) stands on a table top seen at 60°
+    (object 1), at the row where the two meet: it faces the camera twice as squarely as
+    the top, so every sample of the top that lands on it counts as the top running on
+    under it, unlit. The top's rows get what the top continued through the block's
+    rows, unlit there, gives (the same samples at the same points of the top's plane,
+    but for the crease's own row, whose normal the depth buffer bends, and the samples
+    that land on it: each row's mean within 2 %)."""
+    contact = SSSParams().contact
+    opts = dict(KERNELS[kernel], backend=backend, contact=contact, slope=2.5)
+    frame = _crease(lambda r: _table(23.5), _table, top_object=2, bottom_object=1)
+    geom, est, got = shade(frame, 64, **opts)
+    covered = _crease(_table, _table, top_object=1, bottom_object=1)
+    covered.objects = None
+    covered.lighting[:24] = 0.0
+    _, _, expected = shade(covered, 64, **opts)
+    rows = np.arange(24, 48)
+    got_rows = np.array([got[geom.y == y].mean(axis=0) for y in rows])
+    expected_rows = np.array([expected[geom.y == y].mean(axis=0) for y in rows])
+    np.testing.assert_allclose(got_rows, expected_rows, rtol=0.02)
+    # A quarter darker at the block's foot (without the rule: as lit as the open top).
+    assert got_rows[0, 0] < 0.75
+    _, _, apart = shade(frame, 64, **dict(opts, contact=0.0))
+    assert apart[geom.y == 24, 0].mean() > 0.99
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("kernel", ["surface", "cycles"])
+def test_a_surface_standing_on_a_slanted_one_is_unlit_only_where_they_touch(kernel, backend):
+    """The front face of a slab (rows 0-23, object 1, facing the camera) stands on a floor
+    seen at 60° (object 2) in front of it. The floor faces the camera less squarely than
+    the face, so a sample of the face that lands on it counts unlit only where the face's
+    pixel lies within contact·r of the floor's plane: the face's row on the floor comes
+    out darker than with no contact rule, and rows more than contact·(the profile's
+    reach) above it exactly as without one."""
+    contact = SSSParams().contact
+    opts = dict(KERNELS[kernel], backend=backend, slope=2.5)
+    frame = _crease(lambda r: _table(23.5) + 0.0 * r, _table, top_object=1, bottom_object=2)
+    geom, _, got = shade(frame, 64, contact=contact, **opts)
+    _, _, apart = shade(frame, 64, contact=0.0, **opts)
+    face = geom.y < 24
+    assert (got[face & (geom.y == 23), 0] < apart[face & (geom.y == 23), 0]).all()
+    # The red profile reaches 16·d = 32 cm at most: beyond contact·32 cm ≈ 5 cm no sample
+    # of the face counts unlit.
+    far = face & (geom.y < 23 - int(np.ceil(contact * 32 / np.sin(np.radians(60.0)))))
+    np.testing.assert_array_equal(got[far], apart[far])
+
+
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("kernel", KERNELS)
 def test_a_hidden_sample_reads_the_visible_side_mirrored(kernel, backend):
