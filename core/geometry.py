@@ -58,7 +58,10 @@ class Surface:
     normal : (H·W, 3) float32, unit normal of that patch in camera space (x right,
         y down, z along the view axis), turned towards the camera; the view
         direction's opposite where the surface is unknown. The geometric normal
-        of the depth buffer, as Cycles' disk sampling uses the geometric normal.
+        of the depth buffer, as Cycles' disk sampling uses the geometric normal;
+        with the Object Index pass, of the pixel's own object only (a step never
+        goes to a neighbour of another object, so the top's row at a block's foot
+        keeps the top's normal).
     """
 
     ortho: bool
@@ -101,17 +104,28 @@ def surface(frame: Frame, backend: str = "numpy") -> Surface:
     p = positions(cam, frame.depth, frame.origin)
     flat = (wu * hu) * (np.ones_like(z) if ortho else z * z)
 
+    objects = frame.objects
+
     def tangent(axis: int) -> np.ndarray:
         """Per-pixel step along ``axis``: central where both neighbours continue the
-        surface (depth steps within a factor 2), else the side with the smaller step."""
+        surface (depth steps within a factor 2), else the side with the smaller step;
+        never towards a neighbour of another object (with the Object Index pass)."""
         fwd = np.full_like(p, np.nan)
         bwd = np.full_like(p, np.nan)
         if axis == 1:
             fwd[:, :-1] = p[:, 1:] - p[:, :-1]
             bwd[:, 1:] = p[:, 1:] - p[:, :-1]
+            if objects is not None:
+                apart = objects[:, 1:] != objects[:, :-1]
+                fwd[:, :-1][apart] = np.nan
+                bwd[:, 1:][apart] = np.nan
         else:
             fwd[:-1] = p[1:] - p[:-1]
             bwd[1:] = p[1:] - p[:-1]
+            if objects is not None:
+                apart = objects[1:] != objects[:-1]
+                fwd[:-1][apart] = np.nan
+                bwd[1:][apart] = np.nan
         with np.errstate(invalid="ignore"):
             fwd[~np.isfinite(fwd).all(axis=-1)] = np.nan
             bwd[~np.isfinite(bwd).all(axis=-1)] = np.nan
@@ -162,8 +176,11 @@ def _surface_compiled(frame: Frame, backend: str = "numpy") -> Surface:
     cam = frame.camera
     wu, hu = cam.unit_footprint()
     oy, ox = frame.origin
+    objects = frame.objects
     area, normal = compiled_module("surface").surface_arrays(
         np.ascontiguousarray(frame.depth, dtype=np.float32),
+        np.zeros((1, 1), np.int32) if objects is None else np.ascontiguousarray(objects),
+        objects is not None,
         int(ox),
         int(oy),
         float(wu),

@@ -433,7 +433,7 @@ class SSSParams(_Params):
         advanced=True,
     )
     contact: float = param(
-        0.15,
+        0.2,
         label="Contact Height",
         help="With the Object Index pass: a sample never takes light from another object "
         "(Cycles does not scatter between objects); one that lands on another object that "

@@ -261,3 +261,39 @@ def test_light_scale_from_the_geometry_equals_the_frames_own():
     assert np.array_equal(own.view(np.uint64), from_geom.view(np.uint64))
     # The selection matters: the mean over every pixel differs.
     assert not np.allclose(own, f.lighting.reshape(-1, 3).mean(axis=0, dtype=np.float64))
+
+
+# -- the depth-buffer surface at an object's border ---------------------------------------
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_pixel_next_to_another_object_keeps_its_own_surfaces_normal(backend):
+    """A block facing an orthographic camera (rows 0-23) stands on a table top tilted 60°
+    from the view axis (rows 24-47). With the Object Index pass the top's row next to
+    the block has the top's normal, (0, −sin 60°, −cos 60°) in camera space (y down,
+    towards the camera), as every other row of the top; the block's bottom row, its
+    own (0, 0, −1). Without the pass the step towards the block, the smaller, bends the
+    top's row towards the block's normal."""
+    import dataclasses
+
+    from cvsss.core.camera import Camera
+    from cvsss.core.geometry import surface
+    from cvsss.core.synthetic import flat_plane
+
+    if backend == "numba":
+        pytest.importorskip("numba")
+    row = np.arange(48, dtype=np.float64)[:, None]
+    # The top's depth grows by tan 60° cm per row up (1 cm pixels); the block stands at
+    # the top's depth where they meet (between rows 23 and 24).
+    table = 2.0 + np.tan(np.radians(60.0)) * (47.5 - row) * 0.01
+    depth = np.where(row < 24, 2.0 + np.tan(np.radians(60.0)) * 24.0 * 0.01, table)
+    frame = dataclasses.replace(
+        flat_plane(),
+        camera=Camera(width=64, height=48, type="ORTHO", ortho_scale=0.64),
+        depth=np.broadcast_to(depth, (48, 64)).astype(np.float32).copy(),
+        objects=np.broadcast_to(np.where(row < 24, 2, 1), (48, 64)).astype(np.int32),
+    )
+    normal = surface(frame, backend).normal.reshape(48, 64, 3)
+    top = (0.0, -np.sin(np.radians(60.0)), -np.cos(np.radians(60.0)))
+    np.testing.assert_allclose(normal[24:, 1:-1], np.broadcast_to(top, (24, 62, 3)), atol=1e-5)
+    np.testing.assert_allclose(normal[23, 1:-1], np.broadcast_to((0, 0, -1), (62, 3)), atol=1e-6)
+    bent = surface(dataclasses.replace(frame, objects=None), backend).normal.reshape(48, 64, 3)
+    assert np.abs(bent[24, 1:-1] - top).max() > 0.1

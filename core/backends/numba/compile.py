@@ -58,7 +58,9 @@ def compile_all(pixels: int | None = None) -> None:
     estimate_variance(np.ones((1, 2)), np.zeros(1, np.int64), np.ones(1, np.int64), np.ones(1))
     depth = np.full((2, 2), 2.0, np.float32)
     for ortho in (False, True):  # the compiled depth-buffer surface (core.geometry.surface)
-        surface_arrays(depth, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0)
+        surface_arrays(
+            depth, np.zeros((1, 1), np.int32), False, 0, 0, 1e-3, 1e-3, 0.5, 0.5, ortho, 8.0
+        )
     _region(np.ones(1), np.zeros(1, np.int64), np.ones((1, 3)), 8.0, 0.01, np.empty((4, 1, 3)))
     one, yes = np.ones(1), np.ones(1, np.bool_)
     # Through their wrappers: the passes take read-only broadcast views (_flat), a

@@ -41,7 +41,7 @@ def _step(prev, cur, nxt, has_prev, has_next, z):
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def surface_arrays(depth, ox, oy, wu, hu, cx, cy, ortho, max_tilt):
+def surface_arrays(depth, objects, use_obj, ox, oy, wu, hu, cx, cy, ortho, max_tilt):
     """Area and normal of every pixel of the depth buffer: core.geometry.surface's
     arithmetic in one pass (float64, the same operations in the same order, so the
     results are bit-identical; tests/core/test_backend.py checks it).
@@ -49,6 +49,9 @@ def surface_arrays(depth, ox, oy, wu, hu, cx, cy, ortho, max_tilt):
     Parameters
     ----------
     depth : (H, W) float32, planar depth (scene units, inf = background)
+    objects : (H, W) int32, the Object Index pass (read when ``use_obj``): a step never
+        goes to a neighbour of another object
+    use_obj : bool
     ox, oy : int, image position of depth[0, 0]
     wu, hu : float, pixel footprint at unit depth (ortho: the footprint)
     cx, cy : float, principal point (pixels)
@@ -70,8 +73,15 @@ def surface_arrays(depth, ox, oy, wu, hu, cx, cy, ortho, max_tilt):
             right = _position(depth, i, min(j + 1, w - 1), ox, oy, wu, hu, cx, cy, ortho)
             up = _position(depth, max(i - 1, 0), j, ox, oy, wu, hu, cx, cy, ortho)
             down = _position(depth, min(i + 1, h - 1), j, ox, oy, wu, hu, cx, cy, ortho)
-            a0, a1, a2 = _step(left, c, right, j > 0, j < w - 1, z)
-            b0, b1, b2 = _step(up, c, down, i > 0, i < h - 1, z)
+            has_left, has_right, has_up, has_down = j > 0, j < w - 1, i > 0, i < h - 1
+            if use_obj:
+                o = objects[i, j]
+                has_left = has_left and objects[i, j - 1] == o
+                has_right = has_right and objects[i, j + 1] == o
+                has_up = has_up and objects[i - 1, j] == o
+                has_down = has_down and objects[i + 1, j] == o
+            a0, a1, a2 = _step(left, c, right, has_left, has_right, z)
+            b0, b1, b2 = _step(up, c, down, has_up, has_down, z)
             c0 = a1 * b2 - a2 * b1
             c1 = a2 * b0 - a0 * b2
             c2 = a0 * b1 - a1 * b0

@@ -271,9 +271,9 @@ def _crease(top_depth, bottom_depth, *, top_object: int, bottom_object: int):
     row = np.arange(48, dtype=np.float64)[:, None]
     depth = np.where(row < 24, top_depth(row), bottom_depth(row))
     frame.depth = np.broadcast_to(depth, (48, 64)).astype(np.float32).copy()
-    frame.objects = np.broadcast_to(
-        np.where(row < 24, top_object, bottom_object), (48, 64)
-    ).astype(np.int32)
+    frame.objects = np.broadcast_to(np.where(row < 24, top_object, bottom_object), (48, 64)).astype(
+        np.int32
+    )
     return frame
 
 
