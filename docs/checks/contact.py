@@ -10,7 +10,7 @@ ground-truth frames with the model's own noise out of the way (``fixed``,
 - ``no objects``: the Object Index pass dropped (one object per material, as
   before the pass existed);
 - ``contact 0``: objects kept apart, no contact rule;
-- ``contact 0.1`` / ``0.15`` (default) / ``0.25`` / ``0.5`` / ``1``.
+- ``contact 0.1`` / ``0.2`` (default) / ``0.25`` / ``0.5`` / ``1``.
 
 It prints, per scene, PSNR against Cycles' ground truth on SSS pixels (mean
 over the ground-truth frames, and its change against ``no objects``) and the
@@ -37,7 +37,7 @@ VARIANTS = {
     "no objects": None,
     "contact 0": 0.0,
     "contact 0.1": 0.1,
-    "contact 0.15": 0.15,
+    "contact 0.2": 0.2,
     "contact 0.25": 0.25,
     "contact 0.5": 0.5,
     "contact 1": 1.0,
