@@ -372,8 +372,8 @@ def batch_sums(
                 near |= (w_pl > 0) & (np.abs(e) <= tol * w_pl)
         ok &= near
         # Objects: light never passes from one object to another. A sample on another
-        # object close to the centre's tangent plane is the centre's surface running
-        # under it where the two touch: unlit (module doc, *Objects*).
+        # object that stands on the centre's surface can stand for that surface running
+        # on hidden under it, unlit (core.mc.estimator's module doc, *Objects*).
         touching = None
         if objects is not None:
             other = np.take(objects, q, mode="clip") != np.repeat(np.take(objects, pix.idx[a:b]), c)
@@ -568,16 +568,17 @@ def _mirrored(
 
 def _touching(other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix: Pixels, surf, local):
     """(n,) bool: samples on ``other`` objects where the centre's surface runs on hidden
-    under that object, unlit (module doc, *Objects*).
+    under that object, unlit (:mod:`core.mc.estimator`'s module doc, *Objects*).
 
     Such a sample follows the centre's surface in depth (``near``: the depth test a
     sample of the centre's own object passes) and is not below its tangent plane; and
-    either the centre lies within ``touch·r`` of the other
-    object's tangent plane at the landing point (the two touch there), or the other
-    object faces the camera :data:`.params.CONTACT_FACING` times more squarely than the
-    centre (it stands on the centre's surface and hides it). Without normals (planar weights) both planes face the
-    camera and the test is the depth difference within ``touch·r``. Only the ``other``
-    samples are computed; ``local`` holds each sample's pixel (index into ``pix``).
+    either the centre lies within ``touch·r`` of the other object's tangent plane at
+    the landing point (the two touch there), or the other object faces the camera
+    :data:`core.params.CONTACT_FACING` times more squarely than the centre (it stands
+    on the centre's surface and hides it). Without normals (planar weights) both
+    planes face the camera and the test is the depth difference within ``touch·r``.
+    Only the ``other`` samples are computed; ``local`` holds each sample's pixel (index
+    into ``pix``); ``q`` each sample's landing pixel.
     """
     at = np.flatnonzero(other)
     touching = np.zeros(other.size, bool)

@@ -560,7 +560,7 @@ def _pixel_sums(
                     area_t = zero
                     if inside and use_touch and np.floor(fb[_ROW_K + j] * inv_k) != obj:
                         # Another object: does the centre's surface run on hidden under it,
-                        # where the two touch (module doc of core.mc.samples, *Objects*)?
+                        # where the two touch (core.mc.estimator's module doc, *Objects*)?
                         dz = zq - zp
                         lim = touch * fb[_ROW_R + j]
                         if mode == PLANAR:
