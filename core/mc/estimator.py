@@ -86,11 +86,11 @@ plane (``n_p·(x_q − x_p) ≥ 0``), and either the centre lies within
 faces the camera :data:`~core.params.CONTACT_FACING` times more squarely than
 the centre (``|n·v|``: a block seen head-on standing on a top seen at a slant,
 which it hides). So a face standing on a floor seen at a slant darkens only
-near the floor, as in Cycles' renders, while a block standing on a top seen at a
-slant hides all of the top behind it. That surface is unlit: the sample counts light 0 at its point of the
-tangent plane (the plane's depth along the sample's ray, the centre's area
-element scaled by the squared depth ratio, G = 1), weighed as an accepted
-sample. Without normals (planar weights) both planes face the camera and the
+near the floor, as in Cycles' renders, while a block standing on a top seen at
+a slant hides all of the top behind it. That surface is unlit: the sample
+counts light 0 at its point of the tangent plane (the plane's depth along the
+sample's ray, the centre's area element scaled by the squared depth ratio,
+G = 1), weighed as an accepted sample. Without normals (planar weights) both planes face the camera and the
 test is the depth difference within ``contact·r``. On a plane, this is exactly
 the estimator over one surface whose part under the other object is dark
 (tests/core/mc/test_estimator.py). Without the pass every pixel counts as one
