@@ -435,6 +435,14 @@ def _pixel_sums(
             obj = np.floor(key * inv_k)
             area_p = abs(texel[c8 + _FOUR])
             use_touch = use_obj and touch > zero
+            # How squarely the centre faces the camera, |n·v| (the contact test's facing
+            # branch compares another object's against it).
+            if mode == ORTHO:
+                face_p = abs(nz)
+            else:
+                vx = (px - cx) * unit_x
+                vy = (py - cy) * unit_y
+                face_p = abs(vx * nx + vy * ny + nz) / np.sqrt(vx * vx + vy * vy + one)
             use_fill = hidden < one
             f0 = np.float32(-(one - hidden)) * direct[g, 0]
             f1 = np.float32(-(one - hidden)) * direct[g, 1]
@@ -592,14 +600,8 @@ def _pixel_sums(
                             follows = (abs(dz) <= tol) | on_plane
                             follows = follows & (dx * nx + dy * ny + dz * nz >= zero)
                             if mode == ORTHO:
-                                face_p = abs(nz)
                                 face_q = abs(mz)
                             else:
-                                vx = (px - cx) * unit_x
-                                vy = (py - cy) * unit_y
-                                face_p = abs(vx * nx + vy * ny + nz) / np.sqrt(
-                                    vx * vx + vy * vy + one
-                                )
                                 vx = (qx - cx) * unit_x
                                 vy = (qy - cy) * unit_y
                                 face_q = abs(vx * mx + vy * my + mz) / np.sqrt(
