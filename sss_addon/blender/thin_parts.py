@@ -10,9 +10,10 @@ error outweighs what the post adds.
 Thin, for an object, reaches well beyond "a few": on every part under 50 mean free
 paths across that was measured, Cycles' walk with its denoiser came out as close to
 the ground truth as the post or closer (:data:`THIN_OBJECT_MEAN_FREE_PATHS`). A
-Christensen-Burley part 8 to 50 d across goes to Cycles whole as well
-(:data:`BURLEY_OBJECT_D`): the light of its hidden faces reaches through it to the
-face the camera sees, where Cycles' disk probes find it and the post does not.
+Christensen-Burley part 8 to 50 d across, or under 8 d every way, goes to Cycles
+whole as well (:data:`BURLEY_OBJECT_D`): the light of its hidden faces reaches
+through it to the face the camera sees, where Cycles' disk probes find it and the
+post does not.
 
 With *Thin Parts* on Cycles (the default; ``cvsss render
 --thin-walks``), the pass render gives each such object (:func:`thin_objects`) its
@@ -74,11 +75,17 @@ def _whole_object_lengths() -> tuple[dict[str, float], dict[str, float]]:
     return walks, burleys
 
 
-def _goes_whole(smallest: float, name: str, walks: dict, burleys: dict) -> bool:
+def _goes_whole(dimensions, name: str, walks: dict, burleys: dict) -> bool:
+    """Whether an object of these bounding-box ``dimensions`` (scene units) goes to
+    Cycles whole for its material ``name`` (:func:`thin_objects`)."""
+    smallest = min(dimensions)
     if name in walks:
         return smallest < THIN_OBJECT_MEAN_FREE_PATHS * walks[name]
+    if name not in burleys:
+        return False
     low, high = BURLEY_OBJECT_D
-    return name in burleys and low * burleys[name] <= smallest < high * burleys[name]
+    d = burleys[name]
+    return low * d <= smallest < high * d or max(dimensions) < low * d
 
 
 def thin_objects(scene) -> list[tuple[object, list]]:
@@ -88,7 +95,8 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     An object goes whole when its smallest dimension (its bounding box, scene units) is
     under :data:`THIN_OBJECT_MEAN_FREE_PATHS` times a Random Walk material's longest
     mean free path (thin), or within :data:`BURLEY_OBJECT_D` times a Christensen-Burley
-    material's longest d. Materials the post models otherwise (a measured preset, an
+    material's longest d, or when its largest dimension is under the lower end of
+    :data:`BURLEY_OBJECT_D` times that d (a part small every way). Materials the post models otherwise (a measured preset, an
     override) never send an object whole.
     Reads settings, slots and sizes only (the panel calls it on every redraw); objects
     are read only when some participating material has such a length.
@@ -100,12 +108,11 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     for obj in scene.objects:
         if obj.type != "MESH" or obj.hide_render:
             continue
-        smallest = min(obj.dimensions)
         thin = [
             slot.material
             for slot in obj.material_slots
             if slot.material is not None
-            and _goes_whole(smallest, slot.material.name, walks, burleys)
+            and _goes_whole(obj.dimensions, slot.material.name, walks, burleys)
         ]
         if thin:
             found.append((obj, list(dict.fromkeys(thin))))
@@ -243,7 +250,7 @@ def _why(walks: bool, burleys: bool) -> str:
     (``burleys``) or both."""
     walk = f"under {THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across"
     low, high = BURLEY_OBJECT_D
-    burley = f"{low:g} to {high:g} d across"
+    burley = f"{low:g} to {high:g} d across or under {low:g} d every way"
     if walks and burleys:
         return f"left to Cycles whole (Random Walk {walk}, Christensen-Burley {burley})"
     if burleys:

@@ -25,18 +25,23 @@ THIN_OBJECT_MEAN_FREE_PATHS = 50.0
 #: at 128×72 and 16 spp the post had them 0.08 dB closer), the light of the part's
 #: hidden faces (a lit top above the face the camera sees) reaching through it; thicker
 #: parts (the torus of 75 d, the cube of 100 d and more) came out as close or closer
-#: from the post. Below 8 d the post came out closer on the demo's candles and marble
-#: tops (2-7 d), though not on the cube made 5 d across (docs/explanation/accuracy.md
-#: §2.3).
+#: from the post. Below 8 d across the post came out closer on the demo's candles and
+#: marble tops (2-7 d across, each long one way or two), but an object under the range's
+#: lower end every way (its largest dimension too) goes to Cycles whole as well: on
+#: Blender's cube made 1, 2, 3 and 5 d across the post came out 3-8 dB further from the
+#: ground truth than Cycles, its light crossing the cube from every hidden face
+#: (docs/explanation/accuracy.md §2.3).
 BURLEY_OBJECT_D = (8.0, 50.0)
 
 
 def whole_parts_text() -> str:
     """The parts :data:`THIN_OBJECT_MEAN_FREE_PATHS` and :data:`BURLEY_OBJECT_D` send to
     Cycles whole, in words, for help texts: "thinner than 50 mean free paths of their
-    Random Walk material or 8 to 50 d across for their Christensen-Burley one"."""
+    Random Walk material, or 8 to 50 d across or under 8 d every way for their
+    Christensen-Burley one"."""
     low, high = BURLEY_OBJECT_D
     return (
         f"thinner than {THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths of their Random Walk "
-        f"material or {low:g} to {high:g} d across for their Christensen-Burley one"
+        f"material, or {low:g} to {high:g} d across or under {low:g} d every way for their "
+        "Christensen-Burley one"
     )

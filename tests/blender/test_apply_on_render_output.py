@@ -252,7 +252,7 @@ def test_the_panel_says_what_differs_before_the_render(scene):
     with Cycles' passes only."""
     whole = (
         "'flash Suzanne', 'flash Marble', 'flash Apple' and 1 more are 8 to 50 d across "
-        "for Christensen-Burley: Cycles renders their subsurface"
+        "or under 8 d every way for Christensen-Burley: Cycles renders their subsurface"
     )
     assert scene_notes(scene) == [whole]
     layer = scene.view_layers[0]

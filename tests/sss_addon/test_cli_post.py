@@ -199,14 +199,15 @@ def test_every_help_prints(capsys):
 
 def test_thin_parts_help_states_the_sizes_cycles_renders_whole(capsys):
     """`cvsss render --help` states the sizes the thin-parts rule uses (50 mean free
-    paths for Random Walk, 8 to 50 d for Christensen-Burley; accuracy §2.3), without
-    Blender: the parser reads them from the rule's own bpy-free constants."""
+    paths for Random Walk, 8 to 50 d or under 8 every way for Christensen-Burley;
+    accuracy §2.3), without Blender: the parser reads them from the rule's own bpy-free
+    constants."""
     with pytest.raises(SystemExit):
         cli.main(["render", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert (
-        "objects thinner than 50 mean free paths of their Random Walk material or 8 to 50 d "
-        "across for their Christensen-Burley one" in out
+        "objects thinner than 50 mean free paths of their Random Walk material, or 8 to 50 "
+        "d across or under 8 d every way for their Christensen-Burley one" in out
     )
 
 
