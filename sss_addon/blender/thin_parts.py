@@ -41,7 +41,7 @@ session and Blender renders the frame itself.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import bpy
@@ -75,9 +75,9 @@ def _whole_object_lengths() -> tuple[dict[str, float], dict[str, float]]:
     return walks, burleys
 
 
-def _goes_whole(dimensions, name: str, walks: dict, burleys: dict) -> bool:
-    """Whether an object of these bounding-box ``dimensions`` (scene units) goes to
-    Cycles whole for its material ``name`` (:func:`thin_objects`)."""
+def _goes_whole(dimensions: Sequence[float], name: str, walks: dict, burleys: dict) -> bool:
+    """Whether an object of these bounding-box ``dimensions`` (x, y, z, scene units)
+    goes to Cycles whole for its material ``name`` (:func:`thin_objects`)."""
     smallest = min(dimensions)
     if name in walks:
         return smallest < THIN_OBJECT_MEAN_FREE_PATHS * walks[name]
@@ -96,8 +96,8 @@ def thin_objects(scene) -> list[tuple[object, list]]:
     under :data:`THIN_OBJECT_MEAN_FREE_PATHS` times a Random Walk material's longest
     mean free path (thin), or within :data:`BURLEY_OBJECT_D` times a Christensen-Burley
     material's longest d, or when its largest dimension is under the lower end of
-    :data:`BURLEY_OBJECT_D` times that d (a part small every way). Materials the post models otherwise (a measured preset, an
-    override) never send an object whole.
+    :data:`BURLEY_OBJECT_D` times that d (a part small every way). Materials the post
+    models otherwise (a measured preset, an override) never send an object whole.
     Reads settings, slots and sizes only (the panel calls it on every redraw); objects
     are read only when some participating material has such a length.
     """
