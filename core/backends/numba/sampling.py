@@ -269,6 +269,7 @@ def _pixel_sums(
         b_ch = np.empty(BATCH, np.int64)
         b_in = np.empty(BATCH, np.bool_)
         b_ok = np.zeros(BATCH, np.bool_)
+        b_near = np.zeros(BATCH, np.bool_)
         b_fill = np.empty(BATCH, np.bool_)
         b_touch = np.zeros(BATCH, np.bool_)
         b_mir = np.zeros(BATCH, np.bool_)
@@ -546,6 +547,7 @@ def _pixel_sums(
                     else:
                         on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
                     near = near | (use_plane & on_plane)
+                    b_near[j] = near
                     b_ok[j] = b_in[j] & (fb[_ROW_K + j] == key) & near
                 # Then per sample: the landing texel's area and normal for stage 3's
                 # branch-free arithmetic, and what becomes of a rejected sample.
@@ -591,14 +593,8 @@ def _pixel_sums(
                                     texel[q8 + _FOUR],
                                 )
                             )
-                            tol = slope * fb[_ROW_R + j]
-                            wpl = pa * fb[_ROW_FX + j] + pb * fb[_ROW_FY + j] + pc
-                            if mode == ORTHO:
-                                on_plane = abs(zq - wpl) <= tol
-                            else:
-                                on_plane = (wpl > zero) & (abs(zq * wpl - one) <= tol * wpl)
-                            follows = (abs(dz) <= tol) | on_plane
-                            follows = follows & (dx * nx + dy * ny + dz * nz >= zero)
+                            # Stage 2b's follow-surface test, as for the centre's own object.
+                            follows = b_near[j] & (dx * nx + dy * ny + dz * nz >= zero)
                             if mode == ORTHO:
                                 face_q = abs(mz)
                             else:
