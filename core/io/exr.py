@@ -49,6 +49,7 @@ __all__ = [
     "read_channels",
     "read_combined",
     "read_frame",
+    "read_pass",
     "read_result",
     "use_threads",
     "vector_from_motion",
@@ -562,6 +563,40 @@ def read_frame(
     return frame
 
 
+def read_pass(path: str | os.PathLike, name: str) -> np.ndarray:
+    """One pass of a Blender multilayer EXR, by its name or any name it has had.
+
+    Parameters
+    ----------
+    path : str or PathLike, a multilayer EXR with one view layer holding the pass
+        (the view layer is detected; no sidecar needed)
+    name : str, a pass this module knows, e.g. ``"Combined"`` or ``"Object Index"``
+        (Blender's older names, ``"IndexOB"``, are found too)
+
+    Returns
+    -------
+    (H, W) float32 for a one-channel pass (``Object Index``: the objects' Pass
+    Index, whole numbers), else (H, W, C) in the pass's channel order (RGB
+    linear for ``Combined``); EXR row order (top row first).
+
+    Raises
+    ------
+    PassError
+        Missing, not an EXR, truncated, without the pass, or the pass in
+        several view layers.
+    KeyError
+        ``name`` is not a pass this module knows (a caller's mistake).
+    """
+    path = Path(path)
+    name = _ALIAS_TO_PASS[name]
+    channels = _all_channels(_open_exr(path))
+    layers = [layer for layer in _layers(channels).values() if name in layer.passes]
+    if len(layers) != 1:
+        found = f"no {name} pass" if not layers else f"{name} pass in several view layers"
+        raise PassError(f"{os.fspath(path)}: {found}")
+    return _pass_array(path, layers[0], name).astype(np.float32)
+
+
 def read_combined(path: str | os.PathLike) -> np.ndarray:
     """The Combined pass (RGB, linear) of a Blender EXR, e.g. a ground-truth render.
 
@@ -579,13 +614,7 @@ def read_combined(path: str | os.PathLike) -> np.ndarray:
     PassError
         Missing, not an EXR, truncated, or without a Combined pass.
     """
-    path = Path(path)
-    channels = _all_channels(_open_exr(path))
-    layers = [layer for layer in _layers(channels).values() if "Combined" in layer.passes]
-    if len(layers) != 1:
-        found = "no Combined pass" if not layers else "several view layers with a Combined pass"
-        raise PassError(f"{os.fspath(path)}: {found}")
-    return _pass_array(path, layers[0], "Combined").astype(np.float32)
+    return read_pass(path, "Combined")
 
 
 def read_rgb(path: str | os.PathLike) -> np.ndarray:

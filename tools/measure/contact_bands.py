@@ -29,7 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 from cvsss.core.eval.users_frame import display, frame_exposure
-from cvsss.core.io.exr import read_channels, read_rgb
+from cvsss.core.io.exr import read_pass, read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
 RINGS = (1, 2, 4)
@@ -55,9 +55,8 @@ def object_index(blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
     with tempfile.TemporaryDirectory() as folder:
         scene.render.filepath = str(Path(folder) / "index.exr")
         bpy.ops.render.render(write_still=True)
-        channels = read_channels(Path(folder) / "index.exr")
-    key = next(k for k in channels if k.endswith(("IndexOB.X", "Object Index.X")))
-    return np.rint(channels[key]).astype(int), names
+        index = read_pass(Path(folder) / "index.exr", "Object Index")
+    return np.rint(index).astype(int), names
 
 
 def rings(index: np.ndarray, target: int, names: dict[int, str]) -> dict[str, np.ndarray]:

@@ -23,6 +23,7 @@ from cvsss.core.io.exr import (
     list_frames,
     motion_from_vector,
     read_frame,
+    read_pass,
     read_result,
     read_rgb,
     use_threads,
@@ -851,3 +852,22 @@ def test_read_rgb_of_a_single_layer_and_a_multilayer_render(tmp_path):
     OpenEXR.File(header, {"Y": single["R"]}).write(str(tmp_path / "grey.exr"))
     with pytest.raises(PassError, match="no Combined pass"):
         read_rgb(tmp_path / "grey.exr")
+
+
+def test_read_pass_by_either_name_and_its_errors(tmp_path):
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    index = np.array([[0, 1, 2], [3, 0, 7]], np.float32)
+    depth = np.full((2, 3), 4.5, np.float32)
+    channels = {"ViewLayer.IndexOB.X": index, "ViewLayer.Depth.Z": depth}
+    OpenEXR.File(header, channels).write(str(tmp_path / "old.exr"))
+    for name in ("Object Index", "IndexOB"):
+        np.testing.assert_array_equal(read_pass(tmp_path / "old.exr", name), index)
+    np.testing.assert_array_equal(read_pass(tmp_path / "old.exr", "Depth"), depth)
+    with pytest.raises(PassError, match="no Material Index pass"):
+        read_pass(tmp_path / "old.exr", "Material Index")
+    two = {"A.Object Index.X": index, "B.Object Index.X": index}
+    OpenEXR.File(header, two).write(str(tmp_path / "two.exr"))
+    with pytest.raises(PassError, match="Object Index pass in several view layers"):
+        read_pass(tmp_path / "two.exr", "Object Index")
+    with pytest.raises(KeyError):
+        read_pass(tmp_path / "old.exr", "Cryptomatte")
