@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...params import CONTACT_FACING
 from ...sampling.qmc import DIRECTIONS
 from .adaptive import spvg_counts, spvg_update
 from .history import _history_pass, read_column, reproject, surface_kept, write_column
@@ -153,7 +154,7 @@ def _compile_sampling(fn) -> None:
         False,
         f32(1.0),
         f32(0.0),
-        f32(1.5),
+        f32(CONTACT_FACING),
         1,
         1,
         f32(1.0),

@@ -93,6 +93,14 @@ _DIR_SHIFT = np.uint64(32 - DIRECTION_BITS)
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def _normal_z(mx, my, signed):
+    """z of the unit normal (mx, my, z), float32: the texel keeps x and y, and its
+    area carries z's sign (:func:`texels`)."""
+    z2 = max(np.float32(1.0) - (mx * mx + my * my), np.float32(0.0))
+    return np.float32(math.copysign(np.sqrt(z2), signed))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _pdf(x, k, inv_d, ptab, size):
     """Burley pdf at x of one channel from the flat unit table (as
     :func:`core.profiles.burley.pdf_from_table`): k = size/(truncate·d), inv_d = 1/d."""
@@ -328,9 +336,7 @@ def _pixel_sums(
                 c8 = np.uint64(centre) * _EIGHT
                 nx = texel[c8 + _SIX]
                 ny = texel[c8 + _SEVEN]
-                nz = np.float32(
-                    math.copysign(np.sqrt(max(one - (nx * nx + ny * ny), zero)), texel[c8 + _FOUR])
-                )
+                nz = _normal_z(nx, ny, texel[c8 + _FOUR])
                 alike = (nx == ny) and (nx == nz)
                 tx = nz - ny
                 ty = nx + nz if alike else nx - nz
@@ -587,12 +593,7 @@ def _pixel_sums(
                             q8 = np.uint64(q) * _EIGHT
                             mx = texel[q8 + _SIX]
                             my = texel[q8 + _SEVEN]
-                            mz = np.float32(
-                                math.copysign(
-                                    np.sqrt(max(one - (mx * mx + my * my), zero)),
-                                    texel[q8 + _FOUR],
-                                )
-                            )
+                            mz = _normal_z(mx, my, texel[q8 + _FOUR])
                             # Stage 2b's follow-surface test, as for the centre's own object.
                             follows = b_near[j] & (dx * nx + dy * ny + dz * nz >= zero)
                             if mode == ORTHO:
@@ -688,9 +689,7 @@ def _pixel_sums(
                             # Cycles' disk kernel: G = |Δ|·Σ_a m_a/ρ_a.
                             mx = fb[_ROW_MX + j]
                             my = fb[_ROW_MY + j]
-                            mz = np.float32(
-                                math.copysign(np.sqrt(max(one - (mx * mx + my * my), zero)), area_q)
-                            )
+                            mz = _normal_z(mx, my, area_q)
                             # From the landing pixel's own point: on a plane, G = 1.
                             if mode == ORTHO:
                                 ex = (fb[_ROW_FX + j] - px) * unit_x
