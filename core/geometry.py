@@ -542,7 +542,7 @@ def geometry_of(
         lo=region.lo,
         hi=region.hi,
         chromatic=profile.chromatic()[mat] if index.size else np.zeros(0, dtype=bool),
-        weight=_weight(frame, index, mat),
+        weight=pixel_weights(frame, index, mat),
         direct=_direct(frame, index),
         surface=surface(frame, backend) if surface_distance and index.size else None,
         objects=None if frame.objects is None else frame.objects.reshape(-1),
@@ -552,7 +552,7 @@ def geometry_of(
     )
 
 
-def _weight(frame: Frame, index: np.ndarray, mat: np.ndarray) -> np.ndarray:
+def pixel_weights(frame: Frame, index: np.ndarray, mat: np.ndarray) -> np.ndarray:
     """(P,) float64 Subsurface Weight of the pixels ``index`` (slots ``mat``): the
     material's, or the frame's per-pixel weight where it has one (not NaN)."""
     keys = slot_keys(frame.materials)
@@ -657,7 +657,7 @@ class GeometryCache:
             geom = entry[3]
             fresh = dataclasses.replace(
                 geom,
-                weight=_weight(frame, geom.index, geom.mat),
+                weight=pixel_weights(frame, geom.index, geom.mat),
                 direct=_direct(frame, geom.index),
                 # The same values; a view of this frame's pass, as geometry_of() gives.
                 objects=None if frame.objects is None else frame.objects.reshape(-1),

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .backends.twins import compiled_module, compiled_side, numpy_side
-from .frame import Frame
-from .geometry import Geometry, take_rows
+from .frame import Frame, compact_slots, slot_keys
+from .geometry import Geometry, pixel_weights, take_rows
 
 _BIG = float(np.finfo(np.float32).max)
 
@@ -117,6 +117,29 @@ def composite(
     sss = frame.lighting.copy()
     sss.reshape(-1, 3)[index] = shaded
     return np.maximum(out, 0.0, out=out), sss
+
+
+def relit(frame: Frame, mask: np.ndarray, lighting: np.ndarray) -> np.ndarray:
+    """The composite of ``frame`` with ``lighting`` as L on the SSS pixels ``mask``.
+
+    What a method's composite would have been had it shaded those pixels with
+    ``lighting`` (a denoised copy of its :attr:`FrameResult.sss`, say): the same
+    formula and Subsurface Weights as :func:`composite`, whatever the method.
+
+    Parameters
+    ----------
+    frame : Frame (lighting B, albedo, Combined, Material Index; linear), uncropped
+    mask : (H, W) bool, the SSS pixels (:attr:`FrameResult.mask`)
+    lighting : (H, W, 3) float, L (linear, >= 0); read on ``mask`` only
+
+    Returns
+    -------
+    (H, W, 3) float32, as :func:`composite`'s composite
+    """
+    index = np.flatnonzero(mask)
+    mat = compact_slots(frame.material.reshape(-1)[index], slot_keys(frame.materials))
+    shaded = np.asarray(lighting, np.float64).reshape(-1, 3)[index]
+    return composite(frame, index, shaded, pixel_weights(frame, index, mat))[0]
 
 
 def _float64_shaded(frame, index, shaded, weight=None, backend="numpy") -> bool:

@@ -8,14 +8,18 @@ settings (:func:`scene_denoise`), guided by the pass render's Denoising
 Albedo and Denoising Normal (``view_layer.cycles.denoising_store_passes``).
 
 EEVEE's passes carry no noise; the post's samples bring the only noise of its
-frame, on the subsurface pixels. :func:`eevee_denoise` denoises those pixels
-alone (OIDN without guides; every other pixel stays EEVEE's), unless the scene's
-*Denoise Subsurface* is off. Measured with ``tools/measure/eevee_denoise.py``
-on the demo scenes (320×180, frames 21–22, as_ccv, 64 samples a pixel on a
-first frame): the subsurface effect against Cycles' ground truth rose by 0.3 dB
-(flash), 1.5 dB (regular) and 1.7 dB (boids), the whole frame by 0.1–0.5 dB;
-the albedo guide (EEVEE's Diffuse Color) moved the effect by −0.12 to +0.07 dB,
-so no guide is asked for.
+frame, on the subsurface pixels. :func:`eevee_denoise` denoises the post's
+lighting there (OIDN without guides on L, which holds no albedo; the composite
+is then made again, :meth:`FrameDenoiser.finished`; every other pixel stays
+EEVEE's), unless the scene's *Denoise Subsurface* is off. Measured with
+``tools/measure/eevee_denoise.py`` on the demo scenes (320×180, frames 21–22,
+as_ccv, 64 samples a pixel on a first frame): OIDN on the finished frame's
+subsurface pixels raised the subsurface effect against Cycles' ground truth by
+0.3 dB (flash), 1.5 dB (regular) and 1.7 dB (boids), the whole frame by
+0.1–0.5 dB; the albedo guide (EEVEE's Diffuse Color) moved the effect by −0.12
+to +0.07 dB. Denoising the lighting instead of the frame, so that the albedo's
+texture never goes through the denoiser, adds up to a quarter of a dB more
+(docs/explanation/accuracy.md §2.5).
 
 :class:`FrameDenoiser` calls the OIDN library Blender ships (:mod:`.oidn`)
 the way Blender's compositor Denoise node does, and keeps its filters from
@@ -61,6 +65,7 @@ import OpenEXR
 
 from ...core.io.errors import OutputError
 from ...core.io.exr import quiet_native_stderr, read_channels
+from ...core.result import relit
 from . import oidn
 from .denoise import denoised_file_output, tree_copy
 from .errors import RenderError
@@ -92,7 +97,8 @@ class DenoiseSettings:
     gpu : bool
         Cycles' *Use GPU* for denoising (the compositor's denoise device).
     subsurface_only : bool
-        Only the subsurface pixels take the denoised values (EEVEE: :func:`eevee_denoise`).
+        Only the subsurface pixels take the denoised values (EEVEE: :func:`eevee_denoise`);
+        :meth:`FrameDenoiser.finished` then denoises the post's lighting, not the frame.
     """
 
     denoiser: str = "OPENIMAGEDENOISE"
@@ -127,7 +133,9 @@ class DenoiseSettings:
         }
         how = "OIDN" if self.denoiser == "OPENIMAGEDENOISE" else f"OIDN (for {self.denoiser})"
         if self.subsurface_only:
-            return f"{how} on the subsurface pixels, {self.quality}, {guides[self.guides]}"
+            return (
+                f"{how} on the subsurface pixels' lighting, {self.quality}, {guides[self.guides]}"
+            )
         return f"{how}, prefilter {self.prefilter}, {self.quality}, {guides[self.guides]}"
 
 
@@ -155,8 +163,8 @@ def scene_denoise(scene, view_layer) -> DenoiseSettings | None:
     return cycles_denoise(scene)
 
 
-#: The denoise of an EEVEE pass render's finished frames: OIDN on the subsurface
-#: pixels, without guides (the prefilter only filters guides).
+#: The denoise of an EEVEE pass render's finished frames: OIDN on the post's lighting
+#: of the subsurface pixels, without guides (the prefilter only filters guides).
 EEVEE_DENOISE = DenoiseSettings(
     prefilter="NONE", quality="HIGH", guides="RGB", subsurface_only=True
 )
@@ -265,19 +273,46 @@ class FrameDenoiser:
             )
         albedo = albedo if use_albedo else None
         normal = normal if use_albedo and use_normal else None
-        if self.filters is not None:
-            try:
-                rgb = self.filters.run(rgba, albedo, normal)
-            except oidn.OidnError as exc:
-                raise RenderError(f"denoising the finished frame failed: {exc}") from None
-        else:
-            rgb = compositor_denoise(rgba, albedo, normal, settings)
+        rgb = self._run(rgba, albedo, normal)
         result = np.array(rgba, dtype=np.float32, copy=True)
         if settings.subsurface_only:
             result[..., :3][mask] = rgb[mask]
         else:
             result[..., :3] = rgb
         return result
+
+    def _run(self, rgba: np.ndarray, albedo, normal) -> np.ndarray:
+        """(H, W, 3) float32: OIDN's RGB of ``rgba`` with those guides (None: not used)."""
+        if self.filters is not None:
+            try:
+                return self.filters.run(rgba, albedo, normal)
+            except oidn.OidnError as exc:
+                raise RenderError(f"denoising the finished frame failed: {exc}") from None
+        return compositor_denoise(rgba, albedo, normal, self.settings)
+
+    def finished(self, rgba: np.ndarray, result, frame, guides) -> np.ndarray:
+        """The finished frame ``rgba`` of ``result`` (a method's FrameResult on
+        ``frame``, its passes) denoised as the settings ask: the whole frame, guided
+        by ``guides`` ((albedo, normal), :func:`guides_of`), or, with
+        ``subsurface_only`` (EEVEE), the post's lighting alone.
+
+        EEVEE's passes carry no noise: the noise of its finished frame is that of the
+        post's lighting L (:attr:`FrameResult.sss`, no albedo in it, the passes' B off
+        the subsurface pixels). OIDN denoises L without guides and the composite is
+        made again with it (:func:`core.result.relit`), so only the subsurface pixels
+        change and the albedo's texture never goes through the denoiser.
+
+        Returns
+        -------
+        (H, W, 4) float32: denoised RGB, ``rgba``'s alpha.
+        """
+        if not self.settings.subsurface_only:
+            return self(rgba, *guides, result.mask)
+        lighting = np.ones((*result.sss.shape[:2], 4), np.float32)
+        lighting[..., :3] = result.sss
+        out = np.array(rgba, dtype=np.float32, copy=True)
+        out[..., :3] = relit(frame, result.mask, self._run(lighting, None, None))
+        return out
 
 
 def denoise_frame(
@@ -428,7 +463,7 @@ class DenoisedProcessor:
         guides = self.guides(int(frame.number))
         if guides is None:
             return result
-        composite = self.denoiser(result.composite, *guides, result.mask)
+        composite = self.denoiser.finished(result.composite, result, frame, guides)
         return dataclasses.replace(result, composite=composite)
 
     def __getattr__(self, name: str):

@@ -99,7 +99,7 @@ def instrument() -> None:
     session.warm_up_steps = _timed_steps("warm-up", session.warm_up_steps)
     session.process_next = _timed("post-process (incl. denoise)", session.process_next)
     denoiser = aor_session.FrameDenoiser
-    denoiser.__call__ = _timed("  of which denoise", denoiser.__call__)
+    denoiser.finished = _timed("  of which denoise", denoiser.finished)
     session.deliver_next = _timed("delivery", session.deliver_next)
     session.display = _timed("delivery", session.display)
 

@@ -14,12 +14,13 @@ import argparse
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from cvsss.core.eval.users_frame import frame_figures
 from cvsss.core.io.exr import read_frame, read_result, read_rgb
-from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, denoise_frame
+from cvsss.sss_addon.blender.denoise_frame import EEVEE_DENOISE, FrameDenoiser
 
 
 def arguments(doc: str, compare_help: str) -> argparse.ArgumentParser:
@@ -49,14 +50,14 @@ def render_passes(blend: Path, frames: str, out: Path, engine: str) -> Path:
     return out / "passes"
 
 
-def finished(post: Path, method: str, number: str) -> tuple[np.ndarray, np.ndarray]:
-    """A posted frame as a finished RGBA frame (alpha 1) and its (H, W) bool mask of
-    subsurface pixels."""
+def finished(post: Path, method: str, number: str) -> tuple[np.ndarray, SimpleNamespace]:
+    """A posted frame as a finished RGBA frame (alpha 1), and of its result the (H, W)
+    bool ``mask`` of subsurface pixels and the (H, W, 3) lighting ``sss`` (L)."""
     result = read_result(post / method / f"{number}.exr")
     mask = result["Mask"] > 0
     image = np.ones((*mask.shape, 4), np.float32)
     image[..., :3] = result["Composite"][..., :3]
-    return image, mask
+    return image, SimpleNamespace(mask=mask, sss=result["SSS"][..., :3])
 
 
 class Scorer:
@@ -83,12 +84,13 @@ def mean_row(rows: list[tuple[float, float, float]]) -> list[float]:
 
 def scored_post(post: Path, method: str, passes: Path, score: Scorer, denoise: bool) -> list[float]:
     """The mean over ``passes``' frames of (whole, subsurface, effect) dB of ``method``'s
-    finished frames in ``post``; with ``denoise`` their subsurface pixels are denoised
-    first, as Apply on Render does on EEVEE (``EEVEE_DENOISE``)."""
+    finished frames in ``post``; with ``denoise`` they are denoised first as Apply on
+    Render does on EEVEE (``EEVEE_DENOISE``: the post's lighting)."""
     rows = []
-    for path in sorted(passes.glob("*.exr")):
-        image, mask = finished(post, method, path.stem)
-        if denoise:
-            image = denoise_frame(image, read_frame(path).albedo, None, EEVEE_DENOISE, mask)
-        rows.append(score(image, path.stem))
+    with FrameDenoiser(EEVEE_DENOISE) as denoiser:
+        for path in sorted(passes.glob("*.exr")):
+            image, result = finished(post, method, path.stem)
+            if denoise:
+                image = denoiser.finished(image, result, read_frame(path), None)
+            rows.append(score(image, path.stem))
     return mean_row(rows)

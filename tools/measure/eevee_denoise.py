@@ -11,8 +11,11 @@ subsurface effect, dB):
 =============  ==================================================================
 none           the finished frame as it comes out of the post
 rgb            OIDN on the whole frame, no guides
-rgb_sss        the same, taken on the subsurface pixels only (what the add-on does)
+rgb_sss        the same, taken on the subsurface pixels only
 albedo_sss     OIDN guided by EEVEE's Diffuse Color, on the subsurface pixels only
+lighting_sss   OIDN on the post's lighting L (no albedo in it), no guides, the
+               composite made again with it (what the add-on does,
+               ``FrameDenoiser.finished``)
 =============  ==================================================================
 
 From the repository root, after ``cvsss compare BLEND --frames 21-22 --engine
@@ -30,7 +33,12 @@ import json
 from compared import Scorer, arguments, cvsss, finished, mean_row, render_passes
 
 from cvsss.core.io.exr import read_frame
-from cvsss.sss_addon.blender.denoise_frame import DenoiseSettings, denoise_frame
+from cvsss.sss_addon.blender.denoise_frame import (
+    EEVEE_DENOISE,
+    DenoiseSettings,
+    FrameDenoiser,
+    denoise_frame,
+)
 
 VARIANTS = {
     "rgb": DenoiseSettings(prefilter="NONE", guides="RGB"),
@@ -53,10 +61,12 @@ def main() -> int:
     for path in sorted(passes.glob("*.exr")):
         number = path.stem
         frame = read_frame(path)
-        image, mask = finished(post, args.method, number)
+        image, result = finished(post, args.method, number)
         images = {"none": image}
         for name, settings in VARIANTS.items():
-            images[name] = denoise_frame(image, frame.albedo, None, settings, mask)
+            images[name] = denoise_frame(image, frame.albedo, None, settings, result.mask)
+        with FrameDenoiser(EEVEE_DENOISE) as denoiser:
+            images["lighting_sss"] = denoiser.finished(image, result, frame, None)
         for name, each in images.items():
             scores.setdefault(name, []).append(score(each, number))
     table = {name: mean_row(rows) for name, rows in scores.items()}

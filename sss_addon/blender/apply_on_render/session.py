@@ -466,7 +466,7 @@ class Session:
         if self.denoise is not None:
             noisy = rgba
             guides = guides_of(channels, self.job.view_layer.name)
-            rgba = self.denoiser(noisy, *guides, result.mask)
+            rgba = self.denoiser.finished(noisy, result, passes, guides)
         self.last, self.last_noisy = rgba, noisy
         self.paths[frame] = path
         if self.movie or self.deferred:
