@@ -340,9 +340,9 @@ class SSSSettings(PropertyGroup):
     use_denoise_subsurface: BoolProperty(
         name="Denoise Subsurface",
         description=(
-            "EEVEE passes: denoise the subsurface pixels of the finished frame with Blender's "
-            "OpenImageDenoise. EEVEE's passes carry no noise, the post's samples do; every "
-            "other pixel stays EEVEE's"
+            "EEVEE passes: denoise the post's light on the subsurface pixels with Blender's "
+            "OpenImageDenoise, before the surface colour multiplies it. EEVEE's passes carry "
+            "no noise, the post's samples do; every other pixel stays EEVEE's"
         ),
         default=True,
     )

@@ -303,9 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
         "prefilter, quality and guides; OpenImageDenoise, guided by the pass render's "
         "Denoising Albedo and Normal, which the pass files keep; their sidecars record the "
         'settings as "denoise"); default: when the scene\'s render denoises and the '
-        "passes are not denoised (--denoise-passes). EEVEE passes: the finished frame's "
-        "subsurface pixels only, without guides (EEVEE's passes carry no noise, the post's "
-        "samples do); default: the scene's Denoise Subsurface",
+        "passes are not denoised (--denoise-passes). EEVEE passes: the post's light on the "
+        "subsurface pixels only, without guides, before the albedo multiplies it (EEVEE's "
+        "passes carry no noise, the post's samples do); default: the scene's Denoise "
+        "Subsurface",
     )
     rnd.add_argument(
         "--denoise-passes",
