@@ -48,7 +48,7 @@ import bpy
 
 from ...core.io.exr import THIN_POINT_AOV
 from . import materials as sss_materials
-from .whole_parts import BURLEY_OBJECT_D, THIN_OBJECT_MEAN_FREE_PATHS
+from .whole_parts import BURLEY_OBJECT_D, THIN_OBJECT_MEAN_FREE_PATHS, burley_sizes_text
 
 #: A point is thin when its far side lies within this many mean free paths of its Random
 #: Walk material (the thin-feature node of :func:`thin_point_nodes`: an ear, a fin): below
@@ -249,8 +249,7 @@ def _why(walks: bool, burleys: bool) -> str:
     """Why objects go to Cycles whole: for Random Walk (``walks``), Christensen-Burley
     (``burleys``) or both."""
     walk = f"under {THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths across"
-    low, high = BURLEY_OBJECT_D
-    burley = f"{low:g} to {high:g} d across or under {low:g} d every way"
+    burley = burley_sizes_text()
     if walks and burleys:
         return f"left to Cycles whole (Random Walk {walk}, Christensen-Burley {burley})"
     if burleys:

@@ -34,14 +34,19 @@ THIN_OBJECT_MEAN_FREE_PATHS = 50.0
 BURLEY_OBJECT_D = (8.0, 50.0)
 
 
+def burley_sizes_text() -> str:
+    """The Christensen-Burley sizes :data:`BURLEY_OBJECT_D` sends to Cycles whole, in
+    words: "8 to 50 d across or under 8 d every way"."""
+    low, high = BURLEY_OBJECT_D
+    return f"{low:g} to {high:g} d across or under {low:g} d every way"
+
+
 def whole_parts_text() -> str:
     """The parts :data:`THIN_OBJECT_MEAN_FREE_PATHS` and :data:`BURLEY_OBJECT_D` send to
     Cycles whole, in words, for help texts: "thinner than 50 mean free paths of their
     Random Walk material, or 8 to 50 d across or under 8 d every way for their
     Christensen-Burley one"."""
-    low, high = BURLEY_OBJECT_D
     return (
         f"thinner than {THIN_OBJECT_MEAN_FREE_PATHS:g} mean free paths of their Random Walk "
-        f"material, or {low:g} to {high:g} d across or under {low:g} d every way for their "
-        "Christensen-Burley one"
+        f"material, or {burley_sizes_text()} for their Christensen-Burley one"
     )
