@@ -9,12 +9,16 @@ Importing this package does not import bpy.
 def register():
     # Imported here: importing cvsss (as core's users and the background compile do)
     # must not import the Blender glue.
-    from .sss_addon.registration import register as _register
+    from . import operators
+    from .sss_addon import registration
 
-    _register()
+    registration.register()
+    operators.register()
 
 
 def unregister():
-    from .sss_addon.registration import unregister as _unregister
+    from . import operators
+    from .sss_addon import registration
 
-    _unregister()
+    operators.unregister()
+    registration.unregister()

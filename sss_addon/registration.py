@@ -1,4 +1,9 @@
-"""Registering the add-on in Blender: settings, Apply on Render, operators, panels.
+"""Registering the add-on's render parts in Blender: settings, Apply on Render, panels.
+
+These are what a render needs, in Blender's UI and in a headless ``cvsss render``
+(:func:`.blender.standalone.ensure_registered`). The operators stand on this floor's
+shoulders (they call the render glue), so the extension's root ``register`` adds them on
+top; nothing here imports them.
 
 Importing this module does not import bpy (the tests of the background
 compile import it without Blender); the parts that need bpy are loaded by
@@ -13,12 +18,11 @@ from . import precompile
 
 def _modules():
     # Imported here, not at the top: they import bpy, and this module imports without it.
-    from .. import operators
     from .blender import apply_on_render, panels, properties
 
-    # Registration order: properties before the render handlers, operators and panels
-    # that use them.
-    return (properties, apply_on_render, operators, panels)
+    # Registration order: properties before the render handlers and panels that use them
+    # (a panel names the operators by their idname, so they may come later).
+    return (properties, apply_on_render, panels)
 
 
 def _console_log(on: bool) -> None:

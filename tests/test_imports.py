@@ -153,3 +153,15 @@ def test_the_core_never_imports_the_glue():
         (a, b) for a, b in import_edges() if a.startswith("core") and not b.startswith("core")
     )
     assert upward == []
+
+
+def test_the_render_glue_never_imports_the_operators_or_the_root():
+    """The operators call ``sss_addon``; the extension's root registers both. An import
+    the other way (``sss_addon`` reaching up for the operators or the root ``register``)
+    would put the floors back in a loop through Blender's registration."""
+    upward = sorted(
+        (a, b)
+        for a, b in import_edges()
+        if a.startswith("sss_addon") and (b == "<root>" or b.startswith("operators"))
+    )
+    assert upward == []

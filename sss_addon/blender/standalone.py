@@ -1,10 +1,10 @@
 """The one-call API for scripts and ``cvsss render``: :func:`render_sequence`.
 
-It opens a .blend (or takes a scene), registers the add-on for the call
-when it is not enabled (:func:`ensure_registered`: ``cvsss render`` runs
-the ``bpy`` module, where no add-on is enabled), and runs the Blender job
-(:mod:`.render`) to the end. It sits above the add-on's registration, which
-the job itself (render.py, below the operators) must not import.
+It opens a .blend (or takes a scene), registers the add-on's render parts for
+the call when the add-on is not enabled (:func:`ensure_registered`: ``cvsss
+render`` runs the ``bpy`` module, where no add-on is enabled), and runs the
+Blender job (:mod:`.render`) to the end. It sits above the registration, which
+the job itself (render.py) must not import.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import bpy
 
-from ... import register, unregister
 from ...core.method import MethodOptions
 from ...core.params import SSSParams
+from .. import registration
 from . import thin_parts
 from .autoexec import warning as skipped_python
 from .console import StdoutFilter
@@ -27,14 +27,17 @@ from .render import Job, Log, iter_passes, iter_sequence, job_from_scene, run_of
 
 
 def ensure_registered() -> Callable[[], None] | None:
-    """Register the add-on's types when run outside an enabled add-on (CLI).
+    """Register the add-on's settings, Apply on Render and panels when run outside an
+    enabled add-on (CLI, scripts on the ``bpy`` module).
 
+    The operators are not registered: a headless call runs the job itself, and only
+    Blender's UI calls them (the extension's root ``register`` adds them there).
     Returns the matching unregister function, or None when already registered.
     """
     if hasattr(bpy.types.Scene, "sss_settings"):
         return None
-    register()
-    return unregister
+    registration.register()
+    return registration.unregister
 
 
 def render_sequence(
