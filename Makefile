@@ -44,7 +44,8 @@ test-bpy: $(STAMP)
 # The main job (33 min on 2 cores from a clean clone, ground truth included): builds the demo_blend scenes, renders their passes with
 # Cycles, post-processes every method and writes $(OUT)/demo/report.md. Scale with
 # RES=640x360 FRAMES=240 SCENES=flash,boids REF_EVERY=1 GT_EVERY=40 (SCENES empty: all three;
-# GT_EVERY=0: no Cycles ground truth; COMPARE_FRAMES=0: no "what you had / what you get" table);
+# GT_EVERY=0: no Cycles ground truth; COMPARE_FRAMES=0: no "what you had / what you get" table;
+# COMPARE_GT_SPP: that table's ground-truth samples per pixel);
 # SOURCE=synthetic generates flash and regular passes analytically, without Blender.
 RES       ?= 320x180
 FRAMES    ?= 120
@@ -52,12 +53,14 @@ SCENES    ?=
 REF_EVERY ?= 5
 GT_EVERY  ?= 20
 COMPARE_FRAMES ?= 2
+COMPARE_GT_SPP ?= 4096
 SOURCE    ?= blender
 
 demo: $(STAMP)
 	$(BIN)/cvsss demo --out $(OUT)/demo --source $(SOURCE) --res $(RES) --frames $(FRAMES) \
 		$(if $(SCENES),--scenes $(SCENES)) --reference-every $(REF_EVERY) \
-		--ground-truth-every $(GT_EVERY) --compare-frames $(COMPARE_FRAMES)
+		--ground-truth-every $(GT_EVERY) --compare-frames $(COMPARE_FRAMES) \
+		--compare-ground-truth-spp $(COMPARE_GT_SPP)
 
 cv1d: $(STAMP)
 	$(BIN)/cvsss cv1d --out $(OUT)

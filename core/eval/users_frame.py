@@ -40,6 +40,14 @@ from .metrics import PSNR_CAP_DB, gt_exposure
 #: Subsurface pixels: GT with and without subsurface differ by more than this share of 1/k.
 MASK_FRACTION = 0.01
 
+#: Samples per pixel of the ground truth these figures are taken against (``cvsss
+#: compare``, the demo's "what you had / what you get"). Its own noise adds to every
+#: row's error alike, so it narrows the gap between two renders in dB; in a scene lit
+#: by small lights (candle flames) a 1024-spp ground truth's noise on the subsurface
+#: pixels is as large as a denoised 16-spp frame's error
+#: (docs/explanation/accuracy.md §3.5).
+TRUTH_SAMPLES = 4096
+
 
 def _rgb(image: np.ndarray) -> np.ndarray:
     image = np.asarray(image, dtype=np.float64)

@@ -17,7 +17,8 @@ Layout under the output folder::
     renders/<setting>/<variant>_apply_on_render_####.exr
 
 Ground-truth frames whose record matches (same .blend, samples, method) are
-reused; the user's renders are always made again, as they are timed.
+reused; the user's renders are always made again, as they are timed. The ground
+truth takes :data:`TRUTH_SAMPLES` samples per pixel unless told otherwise.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from pathlib import Path
 
 import bpy
 
-from ...core.eval.users_frame import frame_figures, mean_figures
+from ...core.eval.users_frame import TRUTH_SAMPLES, frame_figures, mean_figures
 from ...core.eval.users_table import check_targets, format_table, format_targets
 from ...core.io.atomic import write_text
 from ...core.io.exr import read_rgb
@@ -210,7 +211,7 @@ def compare_scene(
     out: str | Path,
     settings: Sequence[Setting],
     variants: Sequence[str] = ("material",),
-    truth_samples: int = 1024,
+    truth_samples: int = TRUTH_SAMPLES,
     log: Log = print,
 ) -> dict:
     """Render ``scene``'s frames every way of the module doc, measure, write the report.

@@ -270,12 +270,14 @@ class UserRender(_SceneExtras):
 class TruthSetup(_SceneExtras):
     """Cycles' ground truth of the scene as set up: each material's own subsurface method
     (or the variant's, switched by :class:`MethodSwitch` around it), ``samples`` per
-    pixel, denoising, adaptive sampling and the time limit off, seed :data:`SEED`,
-    Combined only, 32-bit multilayer EXR; restored on exit."""
+    pixel, denoising, adaptive sampling and the time limit off, Cycles' ``seed``
+    (:data:`SEED`; another gives an independent ground truth, to measure its own
+    noise), Combined only, 32-bit multilayer EXR; restored on exit."""
 
-    def __init__(self, scene, view_layer, samples: int) -> None:
+    def __init__(self, scene, view_layer, samples: int, seed: int = SEED) -> None:
         super().__init__(scene, view_layer)
         self.samples = int(samples)
+        self.seed = int(seed)
 
     def _apply(self) -> None:
         scene = self.scene
@@ -285,7 +287,7 @@ class TruthSetup(_SceneExtras):
         c.samples = self.samples
         c.use_adaptive_sampling = False
         c.time_limit = 0.0
-        c.seed = SEED
+        c.seed = self.seed
         c.use_animated_seed = False
         c.use_denoising = False
         self._only_layer(lambda ident: ident == "use_pass_combined")
@@ -409,20 +411,22 @@ def render_truth(
     subsurface: bool,
     materials,
     record: dict,
+    seed: int = SEED,
 ) -> bool:
     """Render the ground truth of ``frame`` to ``path`` unless a file with the same
     ``record`` (``<path>.json``) is there; whether it rendered.
 
     ``record`` says what the frame is of (the .blend's digest, the method, with or
     without subsurface); without a digest (a scene never saved) it is always rendered.
+    ``seed``: Cycles' seed (:class:`TruthSetup`).
     """
-    record = {"format": TRUTH_FORMAT, "frame": frame, "samples": samples, "seed": SEED} | record
+    record = {"format": TRUTH_FORMAT, "frame": frame, "samples": samples, "seed": seed} | record
     reusable = record.get("blend_sha256") is not None
     if reusable and path.is_file() and read_record(path.with_suffix(".json")) == record:
         return False
     path.parent.mkdir(parents=True, exist_ok=True)
     off = sss_materials.SSSDisabled(materials) if not subsurface else contextlib.nullcontext()
-    with off, TruthSetup(scene, view_layer, samples):
+    with off, TruthSetup(scene, view_layer, samples, seed):
         scene.frame_set(frame)
         render_to(scene, path)
     write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")

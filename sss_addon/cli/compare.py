@@ -2,7 +2,7 @@
 
     cvsss compare scene.blend --frames 1-3 --out out/compare \\
         [--engine CYCLES,EEVEE] [--samples 16,64] [--eevee-samples N] \\
-        [--method-variants material,RANDOM_WALK,BURLEY] [--ground-truth-spp 1024]
+        [--method-variants material,RANDOM_WALK,BURLEY] [--ground-truth-spp 4096]
 
 renders the frames plain (the scene's engine as set, Cycles with its own
 denoiser), with Apply on Render (the scene's add-on settings) and without
@@ -17,6 +17,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ...core.eval.users_frame import TRUTH_SAMPLES
 from .params import UserError
 
 ENGINES = ("CYCLES", "EEVEE")
@@ -76,9 +77,10 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument(
         "--ground-truth-spp",
         type=int,
-        default=1024,
+        default=TRUTH_SAMPLES,
         metavar="N",
-        help="samples per pixel of Cycles' ground truth (default 1024)",
+        help=f"samples per pixel of Cycles' ground truth (default {TRUTH_SAMPLES}: fewer "
+        "leave noise that narrows the gap between the rows)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 

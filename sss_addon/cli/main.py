@@ -362,6 +362,7 @@ def _demo(args: argparse.Namespace) -> int:
     check_at_least_one("--samples", args.samples)
     check_at_least_one("--frames", args.frames)
     check_at_least_one("--ground-truth-spp", args.ground_truth_spp)
+    check_at_least_one("--compare-ground-truth-spp", args.compare_ground_truth_spp)
     if args.ground_truth_every < 0:
         raise UserError(f"--ground-truth-every must be >= 0, got {args.ground_truth_every}")
     if args.compare_frames < 0:
@@ -370,6 +371,7 @@ def _demo(args: argparse.Namespace) -> int:
         every=args.ground_truth_every,
         samples=args.ground_truth_spp,
         users_frames=args.compare_frames,
+        users_samples=args.compare_ground_truth_spp,
     )
     try:
         width, height = (int(v) for v in args.res.lower().split("x"))

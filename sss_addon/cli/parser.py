@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ...core.eval.users_frame import TRUTH_SAMPLES
 from ...core.methods import METHODS
 from ..blender.whole_parts import whole_parts_text
 from . import bench, compare, studies
@@ -248,6 +249,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames (from frame 21) of the 'what you had / what you get' table: plain Cycles "
         "with its denoiser, plain EEVEE and Apply on Render on each against the ground truth, "
         "with seconds per frame (default 2; 0: off; with the ground truth only)",
+    )
+    demo.add_argument(
+        "--compare-ground-truth-spp",
+        type=int,
+        default=TRUTH_SAMPLES,
+        metavar="N",
+        help="samples per pixel of that table's ground truth (default "
+        f"{TRUTH_SAMPLES}, as cvsss compare's)",
     )
     demo.add_argument("--overwrite", action="store_true", help="make the passes again")
     add_arguments(demo)

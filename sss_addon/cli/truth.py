@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.eval.metrics import psnr_gt
+from ...core.eval.users_frame import TRUTH_SAMPLES
 from ...core.io.atomic import write_text
 from ...core.io.exr import read_combined, read_result
 
@@ -49,6 +50,9 @@ class TruthPlan:
     equal_time_spp : Cycles samples per pixel compared
     users_frames : frames of the "what you had / what you get" table (0: none;
         :mod:`.demo.users`)
+    users_samples : samples per pixel of that table's ground truth (it judges denoised
+        frames, whose error is small beside a 1024-spp ground truth's noise:
+        :data:`core.eval.users_frame.TRUTH_SAMPLES`)
     """
 
     every: int = 20
@@ -57,6 +61,7 @@ class TruthPlan:
     equal_time_spp: tuple[int, ...] = (16, 32, 64, 128)
     methods: tuple[str, ...] = field(default=("none", "separable", "as_ccv", "as_ccv_t"))
     users_frames: int = 2
+    users_samples: int = TRUTH_SAMPLES
 
     def ground_truth_frames(self, frames: int) -> list[int]:
         return [] if self.every < 1 else list(range(1, frames + 1, self.every))

@@ -94,7 +94,8 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
         "--ground-truth-spp",
         "16",
     ]
-    assert cli.main([*args, "--res", "32x18", "--compare-frames", "1"]) == 0
+    table = ["--compare-frames", "1", "--compare-ground-truth-spp", "24"]
+    assert cli.main([*args, "--res", "32x18", *table]) == 0
     args += ["--compare-frames", "0"]  # the table once: its EEVEE renders are slow on a CPU
     scene_dir = out / "regular"
     passes = sorted(p.name for p in (scene_dir / "passes").glob("*.exr"))
@@ -138,6 +139,11 @@ def test_demo_renders_the_blender_scene_and_reuses_its_passes(tmp_path):
     ]
     assert all(r["samples"] == 2 and r["seconds_per_frame"] > 0 for r in users["rows"])
     assert all(r["mean"]["psnr_whole_db"] > 5 for r in users["rows"])
+    # That table's ground truth takes its own samples, the methods' keeps --ground-truth-spp.
+    for variant in ("material", "off"):
+        record = scene_dir / "users_frame" / "ground_truth" / variant / "0003.json"
+        assert json.loads(record.read_text())["samples"] == 24
+    assert json.loads((scene_dir / "ground_truth" / "0003.json").read_text())["samples"] == 16
     report = (out / "report.md").read_text()
     assert "### regular: what you had / what you get (frames 3-3)" in report
     assert "| EEVEE 2 samples, Christensen-Burley (the materials' own) | plain |" in report

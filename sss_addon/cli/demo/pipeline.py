@@ -243,7 +243,7 @@ def truth_extras(
     extra["conclusion"] = conclusion(extra["equal_time"])
     if log and extra["equal_time"]:
         log(format_equal_time(extra["equal_time"]))
-    users = users_frame(scene, scene_dir, frames, truth.users_frames, truth.samples, log)
+    users = users_frame(scene, scene_dir, frames, truth.users_frames, truth.users_samples, log)
     if users is not None:
         extra["users_frame"] = users
     return extra

@@ -11,16 +11,16 @@ of the saved ``<scene>.blend`` gets with F12 or ``blender -b -a``:
   warm-up frames and set-up included in the time, as the user pays them);
 - each engine without subsurface (for the subsurface effect);
 
-and Cycles' ground truth with and without subsurface at the demo's
-ground-truth samples (:mod:`...blender.compare`). The files are under
+and Cycles' ground truth with and without subsurface at
+``--compare-ground-truth-spp`` samples (:mod:`...blender.compare`). The files are under
 ``<scene>/users_frame/``; the rows and targets go to ``truth.json``
 (``users_frame``) and the table to ``report.md``.
 
 Cost, per scene and frame compared, at 320×180 on 2 cores: two ground-truth
-renders (about 50 s each at 1024 spp) and the EEVEE renders (about 25 s
-each at 16 samples on a CPU without a GPU), of which Apply on Render's warm-up
-adds 8 before the first frame; ``--compare-frames 0`` (Makefile
-``COMPARE_FRAMES=0``) leaves the table out.
+renders (with and without subsurface; their time grows with the samples, about
+40 s and 30 s at 1024 spp, four times that at the default 4096) and the EEVEE
+renders (about 25 s each at 16 samples on a CPU without a GPU);
+``--compare-frames 0`` (Makefile ``COMPARE_FRAMES=0``) leaves the table out.
 """
 
 from __future__ import annotations
