@@ -67,13 +67,16 @@ def main() -> int:
     render_seeds(args.blend, numbers, record["samples"], seeds, args.out)
     folders = [truth] + [args.out / f"seed_{s}" for s in seeds]
 
-    def truths(kind: str, number: int) -> list[np.ndarray]:
-        return [read_rgb(f / kind / f"{number:04d}.exr") for f in folders]
-
+    mean_label = f"mean of {len(folders)}"
+    # Each frame's ground truths, read once: seed 0's alone and the mean of all the seeds'.
+    truths: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {"seed 0": {}, mean_label: {}}
     noise = []
     for number in numbers:
-        with_sss, without = truths("material", number), truths("off", number)
+        with_sss = [read_rgb(f / "material" / f"{number:04d}.exr") for f in folders]
+        without = [read_rgb(f / "off" / f"{number:04d}.exr") for f in folders]
         mean, mean_off = sum(with_sss) / len(folders), sum(without) / len(folders)
+        truths["seed 0"][number] = with_sss[0], without[0]
+        truths[mean_label][number] = mean, mean_off
         k = frame_exposure(mean)
         mask = subsurface_mask(mean, mean_off, k)
         shown = np.stack([display(t, k) for t in with_sss])
@@ -87,18 +90,17 @@ def main() -> int:
     for frames in sorted((args.compare / "renders").glob("*/material_*_*.exr")):
         if frames.stem.endswith(f"{first:04d}"):
             setting, kind = frames.parent.name, frames.stem[len("material_") : -5]
-            scores = {}
-            for label, use in (("seed 0", folders[:1]), (f"mean of {len(folders)}", folders)):
-                figures = []
-                for number in numbers:
-                    image = read_rgb(frames.parent / f"material_{kind}_{number:04d}.exr")
-                    off_path = frames.parent / f"off_{number:04d}.exr"
-                    off = read_rgb(off_path) if off_path.is_file() else None
-                    with_sss = [read_rgb(f / "material" / f"{number:04d}.exr") for f in use]
-                    without = [read_rgb(f / "off" / f"{number:04d}.exr") for f in use]
-                    f = frame_figures(image, sum(with_sss) / len(use), sum(without) / len(use), off)
-                    figures.append((f.psnr_whole_db, f.psnr_subsurface_db, f.effect_db))
-                scores[label] = np.mean(figures, axis=0).round(2).tolist()
+            scores = {label: [] for label in truths}
+            for number in numbers:
+                image = read_rgb(frames.parent / f"material_{kind}_{number:04d}.exr")
+                off_path = frames.parent / f"off_{number:04d}.exr"
+                off = read_rgb(off_path) if off_path.is_file() else None
+                for label, by_frame in truths.items():
+                    f = frame_figures(image, *by_frame[number], off)
+                    scores[label].append((f.psnr_whole_db, f.psnr_subsurface_db, f.effect_db))
+            scores = {
+                label: np.mean(rows, axis=0).round(2).tolist() for label, rows in scores.items()
+            }
             table["rows"][f"{setting} {kind}"] = scores
             print(f"{setting:22s} {kind:16s} " + "  ".join(
                 f"{label}: {w:.2f} / {s:.2f} / {e:.2f}" for label, (w, s, e) in scores.items()))  # fmt: skip
