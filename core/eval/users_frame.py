@@ -25,6 +25,11 @@ The subsurface effect
     (k·s·D − k·D_GT)²)`` (:func:`effect_db`): linear, not display-encoded, so
     that a difference is not bent by the OETF.
 
+By object
+    :func:`object_errors` sums a frame's squared errors (display, and the
+    effect's) over each object's subsurface pixels, from an Object Index
+    pass: which objects a figure's gain or loss comes from.
+
 Every function takes linear, scene-referred RGB; none imports Blender.
 """
 
@@ -262,6 +267,61 @@ def frame_figures(
         subsurface_share=float(mask.mean()),
         exposure=k,
     )
+
+
+def object_errors(
+    frame: np.ndarray,
+    ground_truth: np.ndarray,
+    ground_truth_off: np.ndarray,
+    objects: np.ndarray,
+    frame_off: np.ndarray | None = None,
+) -> dict[int, dict]:
+    """Each object's share of a frame's error on the subsurface pixels: which objects a
+    figure's gain or loss comes from.
+
+    Parameters
+    ----------
+    frame, ground_truth, ground_truth_off, frame_off : as :func:`frame_figures`
+    objects : (H, W) int, the object each pixel shows (an Object Index pass; 0: none)
+
+    Returns
+    -------
+    dict, object number -> ``pixels`` (its subsurface pixels, :func:`subsurface_mask`),
+    ``display_sse`` (the squared display error of :func:`psnr_display`, the mean over
+    the channels, summed over those pixels) and ``effect_sse`` (likewise the effect's
+    ``(k·s·D − k·D_GT)²``, :func:`effect_db`; nan without ``frame_off``). An object's
+    PSNR on its subsurface pixels is ``−10·log10(sse / pixels)``. Objects without
+    subsurface pixels are left out.
+    """
+    k = frame_exposure(ground_truth)
+    mask = subsurface_mask(ground_truth, ground_truth_off, k)
+    objects = np.asarray(objects)
+    if objects.shape != mask.shape:
+        raise ValueError(f"objects is {objects.shape}, the frame {mask.shape}")
+    numbers = objects[mask].astype(np.int64)
+    if numbers.size == 0:
+        return {}
+    if numbers.min() < 0:
+        raise ValueError("object numbers must be >= 0")
+    shown = (display(frame, k) - display(ground_truth, k))[mask]
+    display_sse = np.bincount(numbers, np.mean(shown**2, axis=-1))
+    effect_sse = np.full(display_sse.shape, np.nan)
+    if frame_off is not None:
+        s = lighting_scale(ground_truth_off, frame_off, mask)
+        d = (_rgb(frame) - _rgb(frame_off))[mask]
+        d_gt = (_rgb(ground_truth) - _rgb(ground_truth_off))[mask]
+        if np.isfinite(s):
+            change = (float(k) * (s * d - d_gt)) ** 2
+            effect_sse = np.bincount(numbers, np.mean(change, axis=-1), display_sse.size)
+    counts = np.bincount(numbers, minlength=display_sse.size)
+    return {
+        int(n): {
+            "pixels": int(counts[n]),
+            "display_sse": float(display_sse[n]),
+            "effect_sse": float(effect_sse[n]),
+        }
+        for n in np.flatnonzero(counts)
+    }
 
 
 def mean_figures(figures: list[FrameFigures]) -> dict:

@@ -22,6 +22,9 @@ floor the effect is measured from). Its keys:
 ``setup_seconds``             of which before the first frame began rendering
                               (Apply on Render: its set-up and warm-up frames)
 ``steady_seconds_per_frame``  the rest over the frames delivered
+``objects``         object name -> :func:`.users_frame.object_errors`' sums over the
+                    frames (``pixels``, ``display_sse``, ``effect_sse``; ``""``: no object)
+``cycles_renders``  (Apply on Render) the objects whose subsurface Cycles renders whole
 
 :func:`check_targets` holds the pairs (``plain``, ``apply_on_render``) of one
 setting against issue 44's targets and says, for each missed one, what was
@@ -33,6 +36,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+
+from .metrics import PSNR_CAP_DB
 
 KINDS = ("plain", "apply_on_render", "off")
 
@@ -179,7 +184,50 @@ def why_missed(key: str, plain: dict, ours: dict, off: dict | None) -> list[str]
             f"the same engine without subsurface: {_fmt(off['mean'].get('psnr_subsurface_db'))} "
             f"dB on the subsurface pixels, {_fmt(off['mean'].get('psnr_whole_db'))} dB whole"
         )
+    return lines + by_object(key, plain, ours)
+
+
+#: At most this many objects in :func:`by_object`'s lines (those with most of plain's error).
+OBJECT_LINES = 6
+
+#: A ``why`` line that starts with this is a sub-item of the line before it.
+SUB = "\t"
+
+
+def by_object(key: str, plain: dict, ours: dict) -> list[str]:
+    """Which objects a missed figure's gain or loss comes from: per object, on its
+    subsurface pixels over the frames, plain's and Apply on Render's PSNR (the
+    effect's for ``effect_db``, the frame's otherwise) and its share of plain's squared
+    error; the objects with most of that error first. Empty without the rows'
+    ``objects``."""
+    a, b = plain.get("objects") or {}, ours.get("objects") or {}
+    sse = "effect_sse" if key == "effect_db" else "display_sse"
+    total = sum(v[sse] for v in a.values() if math.isfinite(v[sse]))
+    if not a or not b or total <= 0:
+        return []
+    cycles = set(ours.get("cycles_renders") or ())
+    what = "the subsurface effect" if key == "effect_db" else "the frame"
+    lines = [f"by object, {what} on its subsurface pixels (plain → Apply on Render):"]
+    ranked = sorted(a, key=lambda name: -a[name][sse] if math.isfinite(a[name][sse]) else 0)
+    for name in ranked[:OBJECT_LINES]:
+        if name not in b:
+            continue
+        n = a[name]["pixels"]
+        share = a[name][sse] / total
+        whole = " (Cycles renders its subsurface)" if name in cycles else ""
+        lines.append(
+            f"{SUB}{name or '(no object)'}{whole}: {_fmt(_db(a[name][sse], n))} → "
+            f"{_fmt(_db(b[name][sse], n))} dB on {n} pixels ({_fmt(100 * share, 1)} % of plain's "
+            f"squared error)"
+        )
     return lines
+
+
+def _db(sse: float, pixels: int) -> float:
+    """PSNR (peak 1, capped) of a squared error summed over ``pixels``; nan if undefined."""
+    if pixels <= 0 or not math.isfinite(sse):
+        return float("nan")
+    return PSNR_CAP_DB if sse <= 0 else min(PSNR_CAP_DB, -10 * math.log10(sse / pixels))
 
 
 def row_label(row: dict) -> str:
@@ -221,5 +269,7 @@ def format_targets(checks: Sequence[dict]) -> str:
             f"- {c['setting']}: {c['target']}: {mark} (Apply on Render {_fmt(c['ours'])}{unit}, "
             f"plain {_fmt(c['plain'])}{unit}, bound {_fmt(c['required'])}{unit})"
         )
-        lines += [f"  - {why}" for why in c["why"]]
+        lines += [
+            f"    - {why[len(SUB) :]}" if why.startswith(SUB) else f"  - {why}" for why in c["why"]
+        ]
     return "\n".join(lines)

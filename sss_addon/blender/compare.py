@@ -5,13 +5,15 @@ and method variant asked for — plain, with Apply on Render, and without
 subsurface (:mod:`.users_frame`) — and Cycles' ground truth with and without
 subsurface, measures every frame (:mod:`core.eval.users_frame`) and writes
 ``users_frame.json`` and ``users_frame.md`` (:mod:`core.eval.users_table`:
-the table, issue 44's targets and, for a missed one, the figures beside it).
+the table, issue 44's targets and, for a missed one, the figures beside it,
+down to each object's subsurface pixels).
 
 Layout under the output folder::
 
     users_frame.json, users_frame.md
     ground_truth/<variant>/####.exr   Cycles with subsurface (+ ####.json: what it is of)
     ground_truth/off/####.exr         Cycles without subsurface
+    ground_truth/objects/####.exr     which object each pixel shows (+ ####.json: the names)
     renders/<setting>/off_####.exr            the setting without subsurface
     renders/<setting>/<variant>_plain_####.exr
     renders/<setting>/<variant>_apply_on_render_####.exr
@@ -30,13 +32,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import bpy
+import numpy as np
 
-from ...core.eval.users_frame import TRUTH_SAMPLES, frame_figures, mean_figures
+from ...core.eval.users_frame import TRUTH_SAMPLES, frame_figures, mean_figures, object_errors
 from ...core.eval.users_table import check_targets, format_table, format_targets
 from ...core.io.atomic import write_text
-from ...core.io.exr import read_rgb
+from ...core.io.exr import read_pass, read_rgb
 from .. import precompile
 from . import materials as sss_materials
+from . import thin_parts
 from .apply_on_render.session import warm_up_pays
 from .errors import RenderError
 from .passes import output_size, render_view_layer
@@ -49,6 +53,7 @@ from .users_frame import (
     blend_digest,
     frame_file,
     materials_method,
+    render_objects,
     render_truth,
     render_user,
     resolve_variants,
@@ -111,6 +116,7 @@ class _Comparison:
         self.truth_samples = int(truth_samples)
         self.say = log or (lambda _text: None)
         self.rows: list[dict] = []
+        self.objects: dict[int, tuple] = {}  # frame -> (Object Index (H, W), {number: name})
 
     def _switch(self, variant: str, method: str) -> MethodSwitch:
         return MethodSwitch(self.materials, None if variant == "material" else method)
@@ -145,6 +151,12 @@ class _Comparison:
                     self._truth_frame(variant, f, method, subsurface=True)
         for f in self.numbers:
             self._truth_frame("off", f, self.own, subsurface=False)
+        for f in self.numbers:
+            path = self.truth / "objects" / f"{f:04d}.exr"
+            names = render_objects(scene=self.scene, view_layer=self.view_layer, frame=f,
+                                   path=path, materials=self.materials)  # fmt: skip
+            index = read_pass(path, "Object Index")
+            self.objects[f] = (np.rint(index).astype(np.int64), names)
 
     def _render(self, setting: Setting, prefix: Path, kind: str) -> Timing:
         timing = render_user(
@@ -174,20 +186,36 @@ class _Comparison:
                     kind: self._render(setting, folder / f"{variant}_{kind}_", kind)
                     for kind in ("plain", "apply_on_render")
                 }
+                whole = self._whole(setting)
             for kind, timing in timings.items():
                 self._measure(kind, setting, variant, method, folder / f"{variant}_{kind}_", timing)
+                if kind == "apply_on_render":
+                    self.rows[-1]["cycles_renders"] = whole
             self._measure("off", setting, variant, method, folder / "off_", off)
+
+    def _whole(self, setting: Setting) -> list[str]:
+        """The objects whose subsurface Cycles renders in Apply on Render's frame of
+        ``setting``, the method variant applied (:func:`.thin_parts.thin_objects`)."""
+        settings = self.scene.sss_settings
+        if not thin_parts.cycles_renders(settings.thin_walks, setting.engine):
+            return []
+        return [obj.name for obj, _ in thin_parts.thin_objects(self.scene)]
 
     def _measure(self, kind, setting: Setting, variant, method, prefix: Path, timing) -> None:
         figures = {}
+        objects: dict[str, dict] = {}
         off_prefix = self.renders / setting.folder / "off_"
         for f in self.numbers:
-            figures[f] = frame_figures(
-                read_rgb(frame_file(prefix, f)),
-                read_rgb(self.truth / variant / f"{f:04d}.exr"),
-                read_rgb(self.truth / "off" / f"{f:04d}.exr"),
-                read_rgb(frame_file(off_prefix, f)),
-            )
+            frame = read_rgb(frame_file(prefix, f))
+            truth = read_rgb(self.truth / variant / f"{f:04d}.exr")
+            truth_off = read_rgb(self.truth / "off" / f"{f:04d}.exr")
+            frame_off = read_rgb(frame_file(off_prefix, f))
+            figures[f] = frame_figures(frame, truth, truth_off, frame_off)
+            index, names = self.objects[f]
+            for number, sums in object_errors(frame, truth, truth_off, index, frame_off).items():
+                total = objects.setdefault(names.get(number, ""), dict.fromkeys(sums, 0))
+                for key, value in sums.items():
+                    total[key] += value
         row = {
             "kind": kind,
             "engine": setting.engine,
@@ -198,6 +226,7 @@ class _Comparison:
             "frames": self.numbers,
             "figures": {str(f): v.to_dict() for f, v in figures.items()},
             "mean": mean_figures(list(figures.values())),
+            "objects": objects,
             **timing.to_dict(),
         }
         if kind == "apply_on_render":

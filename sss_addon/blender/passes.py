@@ -376,8 +376,8 @@ class PassSetup(SceneSetup):
     def __enter__(self) -> PassSetup:
         try:
             self._thin.__enter__()
-            self._pass_index = _pass_indices(bpy.data.materials)
-            self._object_index = _pass_indices(bpy.data.objects)
+            self._pass_index = pass_indices(bpy.data.materials)
+            self._object_index = pass_indices(bpy.data.objects)
             super().__enter__()
             self._sss = sss_materials.SSSDisabled(self.materials).__enter__()
             if self.thin_points and self.engine == "CYCLES":
@@ -512,9 +512,9 @@ class PassSetup(SceneSetup):
         if self._sss is not None:
             self._sss.restore()
             self._sss = None
-        _put_back_pass_indices(bpy.data.materials, self._pass_index)
+        put_back_pass_indices(bpy.data.materials, self._pass_index)
         self._pass_index = {}
-        _put_back_pass_indices(bpy.data.objects, self._object_index)
+        put_back_pass_indices(bpy.data.objects, self._object_index)
         self._object_index = {}
         try:
             super().restore()
@@ -522,12 +522,12 @@ class PassSetup(SceneSetup):
             self._thin.restore()
 
 
-def _pass_indices(datablocks) -> dict[str, int]:
+def pass_indices(datablocks) -> dict[str, int]:
     """name -> Pass Index of every material or object (what :class:`PassSetup` restores)."""
     return {d.name: d.pass_index for d in datablocks}
 
 
-def _put_back_pass_indices(datablocks, saved: dict[str, int]) -> None:
+def put_back_pass_indices(datablocks, saved: dict[str, int]) -> None:
     """Set each datablock's Pass Index back to ``saved`` where it changed."""
     for d in datablocks:
         index = saved.get(d.name)

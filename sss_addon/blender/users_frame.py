@@ -18,7 +18,9 @@ own render operator:
 
 and Cycles' ground truth with and without subsurface (:class:`TruthSetup`:
 the scene as set up, each material's own subsurface method, denoising and
-adaptive sampling off, a fixed seed). A :class:`Setting` chooses the engine,
+adaptive sampling off, a fixed seed), and which object each pixel shows
+(:func:`render_objects`: Cycles' Object Index pass, one sample, every object
+numbered for it and its Pass Index put back afterwards). A :class:`Setting` chooses the engine,
 its samples and Cycles' denoiser; a method *variant* switches every
 Principled BSDF of the scene to ``RANDOM_WALK`` or ``BURLEY`` for all the
 renders of that variant, ground truth included (``material`` keeps the
@@ -54,6 +56,9 @@ from .passes import (
     SceneSetup,
     engine_identifier,
     fresh_cycles_state,
+    number_objects,
+    pass_indices,
+    put_back_pass_indices,
     read_record,
     render_to,
 )
@@ -431,3 +436,64 @@ def render_truth(
         render_to(scene, path)
     write_text(path.with_suffix(".json"), json.dumps(record, indent=2) + "\n")
     return True
+
+
+class ObjectIndexSetup(_SceneExtras):
+    """Which object each pixel shows: Cycles at one sample, denoising off, the Object
+    Index pass alone, 32-bit multilayer EXR, every object of the scene numbered
+    (:func:`.passes.number_objects`, ``materials``' carriers first); the scene and the
+    objects' Pass Index restored on exit."""
+
+    def __init__(self, scene, view_layer, materials) -> None:
+        super().__init__(scene, view_layer)
+        self.materials = list(materials)
+        self._indices: dict[str, int] | None = None
+
+    def __enter__(self) -> ObjectIndexSetup:
+        self._indices = pass_indices(bpy.data.objects)
+        try:
+            return super().__enter__()
+        except BaseException:
+            self.restore()
+            raise
+
+    def _apply(self) -> None:
+        scene = self.scene
+        scene.render.engine = "CYCLES"
+        self._output_exr()
+        c = scene.cycles
+        c.samples = 1
+        c.use_adaptive_sampling = False
+        c.time_limit = 0.0
+        c.use_denoising = False
+        self._only_layer(lambda ident: ident in ("use_pass_combined", "use_pass_object_index"))
+        number_objects(scene, self.materials)
+
+    def numbers(self) -> dict[int, str]:
+        """Object Index -> object name, as numbered (0, unnumbered objects: left out)."""
+        return {o.pass_index: o.name for o in self.scene.objects if o.pass_index > 0}
+
+    def restore(self) -> None:
+        try:
+            super().restore()
+        finally:
+            if self._indices is not None:
+                put_back_pass_indices(bpy.data.objects, self._indices)
+                self._indices = None
+
+
+def render_objects(scene, view_layer, frame: int, path: Path, materials) -> dict[int, str]:
+    """Render which object each pixel of ``frame`` shows to ``path`` (its Object Index
+    pass, :class:`ObjectIndexSetup`) and write ``<path>.json``: {number: object name}.
+
+    Returns
+    -------
+    dict, Object Index -> object name
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with ObjectIndexSetup(scene, view_layer, materials) as setup:
+        scene.frame_set(frame)
+        render_to(scene, path)
+        names = setup.numbers()
+    write_text(path.with_suffix(".json"), json.dumps({str(k): v for k, v in names.items()}) + "\n")
+    return names

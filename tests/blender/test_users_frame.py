@@ -48,7 +48,8 @@ def test_the_table_of_a_tiny_scene(demo, tmp_path, snapshot):
     scene.frame_set(3)
     scene.render.filepath = str(tmp_path / "user" / "frame_")
     # The demo's subsurface materials use Christensen-Burley; the others Blender's default.
-    assert set(_methods(sss_materials.participating(scene)).values()) == {"BURLEY"}
+    taking = sss_materials.participating(scene)
+    assert set(_methods(taking).values()) == {"BURLEY"}
     every = sss_materials.scene_materials(scene)
     before, methods = scene_state(scene), _methods(every)
     assert "RANDOM_WALK" in methods.values()
@@ -95,6 +96,25 @@ def test_the_table_of_a_tiny_scene(demo, tmp_path, snapshot):
     walk = read_rgb(out / "ground_truth" / "RANDOM_WALK" / "0001.exr")
     assert not np.array_equal(burley, walk)
     assert (out / "ground_truth" / "off" / "0002.exr").is_file()
+
+    # Each row splits its subsurface pixels by object (an Object Index render per frame,
+    # the objects' Pass Index the user's again, above): the scene's own objects, whose
+    # pixels add up to the rows' subsurface share of both frames.
+    names = {o.name for o in scene.objects}
+    width, height = report["size"]
+    carriers = {o.name for o in scene.objects if sss_materials.carries(o, set(taking))}
+    for row in rows:
+        objects = row["objects"]
+        assert set(objects) <= names | {""} and set(objects) & carriers, objects
+        pixels = sum(v["pixels"] for v in objects.values())
+        assert pixels == pytest.approx(2 * row["mean"]["subsurface_share"] * width * height)
+        assert all(v["display_sse"] >= 0 and v["effect_sse"] >= 0 for v in objects.values())
+    # Apply on Render's rows name the objects Cycles renders: the demo's Suzanne, block
+    # and apples are 8 to 50 d across for their Christensen-Burley material.
+    assert {"flash Suzanne", "flash Marble"} <= set(ours["cycles_renders"]) <= carriers
+    assert "flash Marble Top" not in ours["cycles_renders"]
+    numbered = json.loads((out / "ground_truth" / "objects" / "0002.json").read_text())
+    assert set(numbered.values()) == names
 
     # The files: the JSON (no NaN) and the Markdown table.
     saved = json.loads((out / "users_frame.json").read_text())

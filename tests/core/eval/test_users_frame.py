@@ -13,6 +13,7 @@ from cvsss.core.eval.users_frame import (
     frame_figures,
     lighting_scale,
     mean_figures,
+    object_errors,
     psnr_display,
     subsurface_mask,
 )
@@ -140,3 +141,42 @@ def test_mean_figures_leave_out_nan(rng):
     assert mean["psnr_whole_db"] == pytest.approx((a.psnr_whole_db + b.psnr_whole_db) / 2)
     assert mean["effect_db"] == pytest.approx(b.effect_db)
     assert mean_figures([]) == {}
+
+
+def test_object_errors_split_the_subsurface_pixels_by_hand():
+    # Ground truth 0.25, with subsurface everywhere but the last column (0.25 off, the
+    # same there); the bright first row sets p99, so k = 1.
+    gt = np.full((6, 5, 3), 0.25)
+    gt[0] = 1.0
+    gt_off = np.full((6, 5, 3), 0.2)
+    gt_off[0] = 0.9
+    gt_off[:, 4] = gt[:, 4]
+    objects = np.zeros((6, 5), int)
+    objects[1:3] = 3  # object 3: rows 1-2 (8 subsurface pixels)
+    objects[3:] = 7  # object 7: rows 3-5 (12)
+    frame = gt.copy()
+    frame[1:3] = 0.30  # off by srgb(0.30) - srgb(0.25) in each channel
+    frame[3:, :, 0] = 0.20  # off in red only: a third of that channel's square
+    frame[5, 4] = 0.9  # not a subsurface pixel: counts nowhere
+    got = object_errors(frame, gt, gt_off, objects)
+    assert sorted(got) == [0, 3, 7]  # row 0 (object 0) differs by 0.1: subsurface
+    assert got[0] == {"pixels": 4, "display_sse": 0.0, "effect_sse": got[0]["effect_sse"]}
+    assert got[3]["pixels"] == 8 and got[7]["pixels"] == 12
+    up = (_srgb(0.30) - _srgb(0.25)) ** 2
+    down = (_srgb(0.20) - _srgb(0.25)) ** 2 / 3
+    assert got[3]["display_sse"] == pytest.approx(8 * up, rel=1e-9)
+    assert got[7]["display_sse"] == pytest.approx(12 * down, rel=1e-9)
+    assert math.isnan(got[3]["effect_sse"])  # no frame without subsurface given
+    # The effect: an engine lit alike (s = 1) whose change is 0.01 too large on object 3.
+    frame_off = gt_off.copy()
+    frame2 = gt.copy()
+    frame2[1:3] += 0.01
+    effect = object_errors(frame2, gt, gt_off, objects, frame_off)
+    assert effect[3]["effect_sse"] == pytest.approx(8 * 0.01**2, rel=1e-6)
+    assert effect[7]["effect_sse"] == pytest.approx(0.0, abs=1e-20)
+    # An object's PSNR from its sums: object 3 alone, as psnr_display on its pixels.
+    k = frame_exposure(gt)
+    alone = psnr_display(frame, gt, k, objects == 3)
+    assert -10 * math.log10(got[3]["display_sse"] / 8) == pytest.approx(alone, rel=1e-9)
+    with pytest.raises(ValueError, match="objects"):
+        object_errors(frame, gt, gt_off, objects[:3])

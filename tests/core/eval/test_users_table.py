@@ -115,3 +115,50 @@ def test_markdown():
     assert "1.00 (0.80)" in table[2]
     text = format_targets(check_targets(rows))
     assert "MISSED" in text and "met" in text and "  - outside" in text
+
+
+def test_a_missed_target_is_split_by_object():
+    plain, ours = _row("plain", sss=30.0), _row("apply_on_render", sss=30.5)
+    # Squared errors summed over each object's subsurface pixels: PSNR = -10 log10(sse / n).
+    plain["objects"] = {
+        "Top": {
+            "pixels": 100,
+            "display_sse": 0.1,
+            "effect_sse": 0.4,
+        },  # 30 dB, 80 % of plain's (effect 23.98)
+        "Suzanne": {"pixels": 10, "display_sse": 0.02, "effect_sse": 0.01},  # 26.99 dB, 16 %
+        "": {"pixels": 5, "display_sse": 0.005, "effect_sse": 0.0},  # 30 dB, 4 %
+    }
+    ours["objects"] = {
+        "Top": {"pixels": 100, "display_sse": 0.05, "effect_sse": 0.1},  # 33.01 dB (effect 30)
+        "Suzanne": {"pixels": 10, "display_sse": 0.04, "effect_sse": 0.01},  # 23.98 dB
+        "": {"pixels": 5, "display_sse": 0.005, "effect_sse": 0.0},
+    }
+    ours["cycles_renders"] = ["Suzanne"]
+    (check,) = (c for c in check_targets([plain, ours]) if c["target"].startswith("subsurface"))
+    assert check["met"] is False
+    text = format_targets([check])
+    lines = text.splitlines()
+    start = lines.index(
+        "  - by object, the frame on its subsurface pixels (plain → Apply on Render):"
+    )
+    assert lines[start + 1 :] == [
+        "    - Top: 30.00 → 33.01 dB on 100 pixels (80.0 % of plain's squared error)",
+        "    - Suzanne (Cycles renders its subsurface): 26.99 → 23.98 dB on 10 pixels"
+        " (16.0 % of plain's squared error)",
+        "    - (no object): 30.00 → 30.00 dB on 5 pixels (4.0 % of plain's squared error)",
+    ]
+    # The effect's target reads the effect's sums; a zero error is the PSNR cap.
+    eevee = [dict(r, engine="EEVEE", samples=16) for r in (plain, ours)]
+    (effect,) = (c for c in check_targets(eevee) if c["target"].startswith("subsurface effect"))
+    assert "    - Top: 23.98 → 30.00 dB on 100 pixels (97.6 % of plain's squared error)" in (
+        format_targets([effect]).splitlines()
+    )
+    assert "    - (no object): 100.00 → 100.00 dB on 5 pixels (0.0 % of plain's squared error)" in (
+        format_targets([effect]).splitlines()
+    )
+    # Rows without the split (an older report) say nothing more.
+    for row in (plain, ours):
+        del row["objects"]
+    (check,) = (c for c in check_targets([plain, ours]) if c["target"].startswith("subsurface"))
+    assert not any("by object" in why for why in check["why"])
