@@ -153,8 +153,7 @@ class _Comparison:
             self._truth_frame("off", f, self.own, subsurface=False)
         for f in self.numbers:
             path = self.truth / "objects" / f"{f:04d}.exr"
-            names = render_objects(scene=self.scene, view_layer=self.view_layer, frame=f,
-                                   path=path, materials=self.materials)  # fmt: skip
+            names = render_objects(self.scene, self.view_layer, f, path, self.materials)
             index = read_pass(path, "Object Index")
             self.objects[f] = (np.rint(index).astype(np.int64), names)
 
