@@ -61,7 +61,9 @@ def _rgb(image: np.ndarray) -> np.ndarray:
     return image[..., :3]
 
 
-def _db(mse: float) -> float:
+def mse_db(mse: float) -> float:
+    """PSNR (peak 1) of a mean squared error: nan when not finite, capped at
+    :data:`.metrics.PSNR_CAP_DB`."""
     if not np.isfinite(mse):
         return float("nan")
     if mse <= 10.0 ** (-PSNR_CAP_DB / 10.0):
@@ -117,15 +119,23 @@ def psnr_display(
     float, dB (peak 1); ``nan`` when the mask is empty; capped at
     :data:`.metrics.PSNR_CAP_DB`.
     """
+    diff = _display_difference(test, ground_truth, k, mask)
+    if diff.size == 0:
+        return float("nan")
+    return mse_db(float(np.mean(diff**2)))
+
+
+def _display_difference(
+    test: np.ndarray, ground_truth: np.ndarray, k: float, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """``display(test) − display(ground_truth)``: (H, W, 3), or (n, 3) on ``mask``'s pixels."""
     a, b = display(test, k), display(ground_truth, k)
     if a.shape != b.shape:
         raise ValueError(f"test is {a.shape[:2]} pixels, the ground truth {b.shape[:2]}")
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         a, b = a[mask], b[mask]
-    if a.size == 0:
-        return float("nan")
-    return _db(float(np.mean((a - b) ** 2)))
+    return a - b
 
 
 def subsurface_mask(
@@ -200,9 +210,15 @@ def effect_db(
         s = lighting_scale(ground_truth_off, frame_off, mask)
     if not np.isfinite(s):
         return float("nan")
+    diff = _effect_difference(frame, frame_off, ground_truth, ground_truth_off, mask, k, s)
+    return mse_db(float(np.mean(diff**2)))
+
+
+def _effect_difference(frame, frame_off, ground_truth, ground_truth_off, mask, k, s):
+    """(n, 3) ``k·s·D − k·D_GT`` on ``mask``'s pixels (:func:`effect_db`'s arguments)."""
     d = (_rgb(frame) - _rgb(frame_off))[mask]
     d_gt = (_rgb(ground_truth) - _rgb(ground_truth_off))[mask]
-    return _db(float(np.mean((float(k) * (s * d - d_gt)) ** 2)))
+    return float(k) * (s * d - d_gt)
 
 
 @dataclass(frozen=True)
@@ -303,16 +319,16 @@ def object_errors(
         return {}
     if numbers.min() < 0:
         raise ValueError("object numbers must be >= 0")
-    shown = (display(frame, k) - display(ground_truth, k))[mask]
+    shown = _display_difference(frame, ground_truth, k, mask)
     display_sse = np.bincount(numbers, np.mean(shown**2, axis=-1))
     effect_sse = np.full(display_sse.shape, np.nan)
     if frame_off is not None:
         s = lighting_scale(ground_truth_off, frame_off, mask)
-        d = (_rgb(frame) - _rgb(frame_off))[mask]
-        d_gt = (_rgb(ground_truth) - _rgb(ground_truth_off))[mask]
         if np.isfinite(s):
-            change = (float(k) * (s * d - d_gt)) ** 2
-            effect_sse = np.bincount(numbers, np.mean(change, axis=-1), display_sse.size)
+            change = _effect_difference(
+                frame, frame_off, ground_truth, ground_truth_off, mask, k, s
+            )
+            effect_sse = np.bincount(numbers, np.mean(change**2, axis=-1), display_sse.size)
     counts = np.bincount(numbers, minlength=display_sse.size)
     return {
         int(n): {

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 
-from .metrics import PSNR_CAP_DB
+from .users_frame import mse_db
 
 KINDS = ("plain", "apply_on_render", "off")
 
@@ -224,10 +224,8 @@ def by_object(key: str, plain: dict, ours: dict) -> list[str]:
 
 
 def _db(sse: float, pixels: int) -> float:
-    """PSNR (peak 1, capped) of a squared error summed over ``pixels``; nan if undefined."""
-    if pixels <= 0 or not math.isfinite(sse):
-        return float("nan")
-    return PSNR_CAP_DB if sse <= 0 else min(PSNR_CAP_DB, -10 * math.log10(sse / pixels))
+    """PSNR of a squared error summed over ``pixels`` (:func:`.users_frame.mse_db`)."""
+    return mse_db(sse / pixels) if pixels > 0 else float("nan")
 
 
 def row_label(row: dict) -> str:

@@ -450,12 +450,9 @@ class ObjectIndexSetup(_SceneExtras):
         self._indices: dict[str, int] | None = None
 
     def __enter__(self) -> ObjectIndexSetup:
+        # Saved first: a failing set-up restores (SceneSetup) and puts them back.
         self._indices = pass_indices(bpy.data.objects)
-        try:
-            return super().__enter__()
-        except BaseException:
-            self.restore()
-            raise
+        return super().__enter__()
 
     def _apply(self) -> None:
         scene = self.scene
