@@ -43,27 +43,22 @@ from pathlib import Path
 
 import bpy
 import numpy as np
-import OpenEXR
 from contact_bands import object_index
 
 from cvsss.core.eval.users_frame import display, frame_exposure
-from cvsss.core.io.exr import read_frame, read_result
+from cvsss.core.io.exr import read_channels, read_frame, read_result
 from cvsss.core.result import relit
-from cvsss.sss_addon.blender.denoise_frame import FrameDenoiser, cycles_denoise
+from cvsss.sss_addon.blender.denoise_frame import FrameDenoiser, cycles_denoise, read_guides
 from cvsss.sss_addon.blender.passes import render_view_layer
 from cvsss.sss_addon.blender.standalone import ensure_registered
 from cvsss.sss_addon.blender.users_frame import TruthSetup
 
 
-def layer(path: Path, name: str) -> np.ndarray:
-    """(H, W, C) float32 of the pass ``name`` (RGB, or XYZ for a normal) of a multilayer EXR."""
-    exr = OpenEXR.File(str(path), separate_channels=True)
-    channels = {k: np.asarray(c.pixels) for p in exr.parts for k, c in p.channels.items()}
-    picked = {
-        k.rsplit(".", 1)[1]: v for k, v in channels.items() if k.rsplit(".", 1)[0].endswith(name)
-    }
-    order = "RGB" if "R" in picked else "XYZ"
-    return np.stack([picked[c] for c in order], -1).astype(np.float32)
+def layer(path: Path, layer_name: str, name: str) -> np.ndarray:
+    """(H, W, 3) float32 RGB of the pass ``name`` of view layer ``layer_name`` in a
+    multilayer EXR (``core.io.exr.read_channels``)."""
+    channels = read_channels(path)
+    return np.stack([channels[f"{layer_name}.{name}.{c}"] for c in "RGB"], -1)
 
 
 def exr_output(scene, path: Path) -> None:
@@ -77,7 +72,8 @@ def exr_output(scene, path: Path) -> None:
 
 def render(blend: Path, out: Path, frame: int, samples: int, truth_spp: int):
     """The scene at ``samples`` saved as OUT/scene.blend; OUT/plain.exr (denoised, with
-    its noisy image and guides) and OUT/truth.exr; the denoiser's settings."""
+    its noisy image and guides) and OUT/truth.exr; the denoiser's settings and the
+    view layer's name."""
     ensure_registered()
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     scene = bpy.context.scene
@@ -94,7 +90,7 @@ def render(blend: Path, out: Path, frame: int, samples: int, truth_spp: int):
     with TruthSetup(scene, view_layer, truth_spp):
         exr_output(scene, out / "truth.exr")
         bpy.ops.render.render(write_still=True)
-    return settings
+    return settings, view_layer.name
 
 
 def main() -> int:
@@ -105,7 +101,7 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=64, help="Cycles' samples per pixel")
     parser.add_argument("--truth-spp", type=int, default=1024)
     args = parser.parse_args()
-    settings = render(args.blend, args.out, args.frame, args.samples, args.truth_spp)
+    settings, layer_name = render(args.blend, args.out, args.frame, args.samples, args.truth_spp)
     post = args.out / "post"
     subprocess.run(
         [sys.executable, "-m", "cvsss.sss_addon.cli.main", "render", str(args.out / "scene.blend"),
@@ -120,11 +116,10 @@ def main() -> int:
     frame = read_frame(post / "passes" / name)
     finished = relit(frame, mask, result["SSS"][..., :3])
     delivered = result["Composite"][..., :3]
-    albedo = layer(post / "passes" / name, "Denoising Albedo")
-    normal = layer(post / "passes" / name, "Denoising Normal")
-    plain = layer(args.out / "plain.exr", "Combined")
-    noisy = layer(args.out / "plain.exr", "Noisy Image")
-    truth = layer(args.out / "truth.exr", "Combined")
+    albedo, normal = read_guides(post / "passes" / name, layer_name)
+    plain = layer(args.out / "plain.exr", layer_name, "Combined")
+    noisy = layer(args.out / "plain.exr", layer_name, "Noisy Image")
+    truth = layer(args.out / "truth.exr", layer_name, "Combined")
     inside = np.repeat(mask[..., None], 3, -1)
     inputs = {
         "F": finished,

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from contact_bands import object_index
 
-from cvsss.core.eval.users_frame import display, frame_exposure, lighting_scale, subsurface_mask
+from cvsss.core.eval.users_frame import display, frame_exposure, object_errors, subsurface_mask
 from cvsss.core.io.exr import read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
@@ -60,21 +60,20 @@ def main() -> int:
         name = f"{number:04d}.exr"
         truth = read_rgb(args.compare / "ground_truth" / args.variant / name)
         truth_off = read_rgb(args.compare / "ground_truth" / "off" / name)
-        k = frame_exposure(truth)
-        mask = subsurface_mask(truth, truth_off, k)
-        errors = {}
-        if args.effect:
-            off = read_rgb(renders / f"off_{name}")
-            s = lighting_scale(truth_off, off, mask)
-            for kind in KINDS:
-                image = read_rgb(renders / f"{args.variant}_{kind}_{name}")
-                errors[kind] = ((k * (s * (image - off) - (truth - truth_off))) ** 2).mean(-1)
-        else:
-            shown = display(truth, k)
-            for kind in KINDS:
-                image = read_rgb(renders / f"{args.variant}_{kind}_{name}")
-                errors[kind] = ((display(image, k) - shown) ** 2).mean(-1)
+        off = read_rgb(renders / f"off_{name}") if args.effect else None
+        sse = "effect_sse" if args.effect else "display_sse"
+        for kind in KINDS:
+            image = read_rgb(renders / f"{args.variant}_{kind}_{name}")
+            for number_, sums_ in object_errors(image, truth, truth_off, index, off).items():
+                obj = names.get(number_)
+                if obj is None:
+                    continue
+                if kind == KINDS[0]:
+                    pixels[obj] = pixels.get(obj, 0) + sums_["pixels"]
+                sums[(obj, kind)] = sums.get((obj, kind), 0.0) + sums_[sse]
         if seeds:
+            k = frame_exposure(truth)
+            mask = subsurface_mask(truth, truth_off, k)
             others = [read_rgb(seed / "material" / name) for seed in seeds]
             others_off = [read_rgb(seed / "off" / name) for seed in seeds]
             mean, mean_off = sum(others) / len(seeds), sum(others_off) / len(seeds)
@@ -87,14 +86,11 @@ def main() -> int:
                 diff = k * ((truth - truth_off) - (mean - mean_off))
             else:
                 diff = display(truth, k) - display(mean, k)
-            errors["ground truth's noise"] = (diff**2).mean(-1) * share
-        for number_, obj in names.items():
-            here = mask & (index == number_)
-            if not here.any():
-                continue
-            pixels[obj] = pixels.get(obj, 0) + int(here.sum())
-            for kind, error in errors.items():
-                sums[(obj, kind)] = sums.get((obj, kind), 0.0) + float(error[here].sum())
+            noise = (diff**2).mean(-1) * share
+            for number_, obj in names.items():
+                here = mask & (index == number_)
+                key = (obj, "ground truth's noise")
+                sums[key] = sums.get(key, 0.0) + float(noise[here].sum())
     columns = list(KINDS) + (["ground truth's noise"] if seeds else [])
     what = "effect" if args.effect else "display"
     print(f"{args.setting}, frames {args.frames}: squared {what} error on subsurface pixels, ×1000")
