@@ -35,6 +35,16 @@ twin: OptiX (the frame gets OIDN) and Cycles' "follow scene" quality, which
 the node would take from the compositor's own setting, so the quality is
 always set explicitly.
 
+The post's pixels are a smooth estimate, and OIDN judges how hard to denoise from
+the noise it sees around a pixel: in a frame that is mostly the post's, the pixels
+left to Cycles (its own subsurface on thin parts, the floor, the background) came out
+denoised less than in the plain render, worst in small frames. From
+:data:`STAND_IN_MIN_SAMPLES` samples per pixel a Cycles frame is therefore denoised
+twice (:meth:`FrameDenoiser.beside_stand_in`): the post's pixels keep the denoise of
+the frame, every other pixel takes that of the frame with stand-in noise on the
+post's pixels. The second run is OIDN's main filter alone, on the guides the first
+prefiltered (:meth:`.oidn.Filters.run_again`; docs/explanation/design.md §2.4).
+
 Why the finished frame and not the passes: denoising the passes the post
 reads (``--denoise-passes``, :mod:`.denoise`) and compositing them gave
 0.05–0.08 dB more against Cycles' ground truth at 4 and 16 spp and the same
@@ -83,6 +93,24 @@ GUIDES = {
 }
 
 
+#: The stand-in noise of the second denoise (:meth:`FrameDenoiser.beside_stand_in`), as
+#: a multiple of the relative noise of the pixels round the post's (:func:`context_noise`):
+#: the plain render's own subsurface noise on the post's pixels is about this multiple
+#: of what is read round them (docs/explanation/accuracy.md §4.1).
+STAND_IN_GAIN = 5.0
+#: The stand-in noise's bounds: below the lower one the second denoise would change
+#: little and is skipped; the upper one keeps ``1 + σ·g`` mostly positive.
+STAND_IN_SKIP, STAND_IN_MAX = 0.01, 0.5
+#: How far from the post's pixels (city-block, pixels) :func:`context_noise` looks.
+CONTEXT_REACH = 8
+#: Cycles' samples per pixel from which the finished frame is denoised twice. The second
+#: denoise costs OIDN's main filter whatever the samples, while the render's own time
+#: grows with them: below this it takes more of the frame's time than the 1.25× target
+#: leaves, where the parts left to Cycles are noisy enough that it gains least
+#: (docs/performance.md).
+STAND_IN_MIN_SAMPLES = 64
+
+
 @dataclass(frozen=True)
 class DenoiseSettings:
     """What a scene asks of Cycles' denoiser for a final render.
@@ -99,6 +127,12 @@ class DenoiseSettings:
     subsurface_only : bool
         Only the subsurface pixels take the denoised values (EEVEE: :func:`eevee_denoise`);
         :meth:`FrameDenoiser.finished` then denoises the post's lighting, not the frame.
+    stand_in_gain : float
+        The noise the post's pixels carry in the second denoise, the one that gives every
+        other pixel its value (:meth:`FrameDenoiser.beside_stand_in`), as a multiple of
+        the noise round them; 0 denoises the finished frame once, as it is.
+        :func:`cycles_denoise` sets :data:`STAND_IN_GAIN` from
+        :data:`STAND_IN_MIN_SAMPLES` samples per pixel.
     """
 
     denoiser: str = "OPENIMAGEDENOISE"
@@ -107,6 +141,7 @@ class DenoiseSettings:
     guides: str = "RGB_ALBEDO_NORMAL"
     gpu: bool = False
     subsurface_only: bool = False
+    stand_in_gain: float = 0.0
 
     def __post_init__(self) -> None:
         for name, table in (("prefilter", PREFILTER), ("quality", QUALITY), ("guides", GUIDES)):
@@ -114,6 +149,8 @@ class DenoiseSettings:
                 raise ValueError(
                     f"{name} must be one of {', '.join(table)}, got {getattr(self, name)!r}"
                 )
+        if not 0.0 <= self.stand_in_gain <= 100.0:
+            raise ValueError(f"stand_in_gain must be in [0, 100], got {self.stand_in_gain!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -136,11 +173,19 @@ class DenoiseSettings:
             return (
                 f"{how} on the subsurface pixels' lighting, {self.quality}, {guides[self.guides]}"
             )
-        return f"{how}, prefilter {self.prefilter}, {self.quality}, {guides[self.guides]}"
+        line = f"{how}, prefilter {self.prefilter}, {self.quality}, {guides[self.guides]}"
+        if self.stand_in_gain > 0.0:
+            line += (
+                "; the pixels off the post's mask denoised again beside stand-in noise "
+                f"({self.stand_in_gain:g}× their surroundings')"
+            )
+        return line
 
 
 def cycles_denoise(scene) -> DenoiseSettings:
-    """The scene's Cycles denoiser settings, whether its render denoises or not."""
+    """The scene's Cycles denoiser settings, whether its render denoises or not; from
+    :data:`STAND_IN_MIN_SAMPLES` samples per pixel, with the second denoise beside
+    stand-in noise (:meth:`FrameDenoiser.beside_stand_in`)."""
     c = scene.cycles
     return DenoiseSettings(
         denoiser=str(c.denoiser),
@@ -148,6 +193,7 @@ def cycles_denoise(scene) -> DenoiseSettings:
         quality=str(c.denoising_quality),
         guides=str(c.denoising_input_passes),
         gpu=bool(getattr(c, "denoising_use_gpu", False)),
+        stand_in_gain=STAND_IN_GAIN if int(c.samples) >= STAND_IN_MIN_SAMPLES else 0.0,
     )
 
 
@@ -213,6 +259,52 @@ def _remove(block) -> None:
         bpy.data.images.remove(block)
 
 
+def _grow(mask: np.ndarray) -> np.ndarray:
+    """``mask`` and its four neighbours of each pixel (edges padded with False)."""
+    m = np.pad(mask, 1)
+    return mask | m[:-2, 1:-1] | m[2:, 1:-1] | m[1:-1, :-2] | m[1:-1, 2:]
+
+
+def context_noise(rgb: np.ndarray, mask: np.ndarray, reach: int = CONTEXT_REACH) -> float:
+    """The relative noise of the pixels round ``mask``: what OIDN sees next to the post's.
+
+    Over the pixels off ``mask`` within ``reach`` pixels of it (city-block), none of
+    whose four neighbours is on it, each pixel's luminance departs from the mean of its
+    four neighbours' by ``r``, relative to that mean. The noise is the median ``|r|``
+    as a standard deviation (×1.4826), divided by √1.25 for the neighbours' own noise
+    in the mean. Pixels whose neighbours' mean is under 1/1000 of the frame's median
+    luminance are left out (a relative deviation means nothing there).
+
+    Parameters
+    ----------
+    rgb : (H, W, >=3) float, linear, the finished frame (only the RGB is read)
+    mask : (H, W) bool, the post's pixels
+    reach : int, pixels
+
+    Returns
+    -------
+    float, a relative standard deviation (0 for a noise-free neighbourhood, or no
+    pixel to measure).
+
+    >>> flat = np.ones((8, 8, 3)); mask = np.zeros((8, 8), bool); mask[:, :3] = True
+    >>> context_noise(flat, mask)
+    0.0
+    """
+    y = np.asarray(rgb, dtype=np.float64)[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    mask = np.asarray(mask, dtype=bool)
+    p = np.pad(y, 1, mode="edge")
+    neighbours = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]) / 4.0
+    near = mask
+    for _ in range(reach):
+        near = _grow(near)
+    floor = 1e-3 * float(np.median(y))
+    measured = near & ~_grow(mask) & (neighbours > max(floor, 1e-12))
+    if not measured.any():
+        return 0.0
+    r = (y[measured] - neighbours[measured]) / neighbours[measured]
+    return float(1.4826 * np.median(np.abs(r)) / np.sqrt(1.25))
+
+
 class FrameDenoiser:
     """OIDN on one finished frame after another, as ``settings`` ask.
 
@@ -237,6 +329,7 @@ class FrameDenoiser:
     def __init__(self, settings: DenoiseSettings, direct: bool = True) -> None:
         self.settings = settings
         use_albedo, use_normal = GUIDES[settings.guides]
+        self._noise_field = np.zeros((0, 0), np.float32)
         self.filters: oidn.Filters | None = None
         if direct and not settings.gpu and oidn.library() is not None:
             # A device that fails to start leaves the frames to the compositor.
@@ -266,20 +359,22 @@ class FrameDenoiser:
         settings = self.settings
         if settings.subsurface_only and mask is None:
             raise ValueError("denoising the subsurface pixels only needs their mask")
-        use_albedo, use_normal = GUIDES[settings.guides]
-        if (use_albedo and albedo is None) or (use_normal and normal is None):
-            raise RenderError(
-                "denoising the finished frame needs the pass render's Denoising Albedo and Normal"
-            )
-        albedo = albedo if use_albedo else None
-        normal = normal if use_albedo and use_normal else None
-        rgb = self._run(rgba, albedo, normal)
+        rgb = self._run(rgba, *self._guides(albedo, normal))
         result = np.array(rgba, dtype=np.float32, copy=True)
         if settings.subsurface_only:
             result[..., :3][mask] = rgb[mask]
         else:
             result[..., :3] = rgb
         return result
+
+    def _guides(self, albedo, normal) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The guides the settings use (None for one they do not)."""
+        use_albedo, use_normal = GUIDES[self.settings.guides]
+        if (use_albedo and albedo is None) or (use_normal and normal is None):
+            raise RenderError(
+                "denoising the finished frame needs the pass render's Denoising Albedo and Normal"
+            )
+        return (albedo if use_albedo else None, normal if use_albedo and use_normal else None)
 
     def _run(self, rgba: np.ndarray, albedo, normal) -> np.ndarray:
         """(H, W, 3) float32: OIDN's RGB of ``rgba`` with those guides (None: not used)."""
@@ -290,11 +385,75 @@ class FrameDenoiser:
                 raise RenderError(f"denoising the finished frame failed: {exc}") from None
         return compositor_denoise(rgba, albedo, normal, self.settings)
 
+    def _run_again(self, rgba: np.ndarray, albedo, normal) -> np.ndarray:
+        """:meth:`_run` on another image with the guides of the last run: on the CPU
+        only the main filter runs again (:meth:`.oidn.Filters.run_again`)."""
+        if self.filters is not None:
+            try:
+                return self.filters.run_again(rgba)
+            except oidn.OidnError as exc:
+                raise RenderError(f"denoising the finished frame failed: {exc}") from None
+        return compositor_denoise(rgba, albedo, normal, self.settings)
+
+    def _noise(self, height: int, width: int) -> np.ndarray:
+        """(H, W) float32 standard normal noise, the same for every frame of a size (as
+        Cycles' own noise is, its seed not animated)."""
+        if self._noise_field.shape != (height, width):
+            rng = np.random.default_rng(0)
+            self._noise_field = rng.standard_normal((height, width)).astype(np.float32)
+        return self._noise_field
+
+    def beside_stand_in(self, denoised, rgba, mask, albedo, normal) -> np.ndarray:
+        """``denoised`` (``rgba`` denoised) with every pixel off ``mask`` taken from a
+        second denoise of ``rgba`` whose ``mask`` pixels carry stand-in noise.
+
+        OIDN judges how hard to denoise from the noise it sees round a pixel. The
+        post's pixels are a smooth estimate, so in the finished frame the pixels left
+        to Cycles (its own subsurface on thin parts, the floor, the background), as
+        noisy as in the plain render, came out denoised less than the plain render's.
+        The second denoise gives the post's pixels a stand-in for the noise Cycles'
+        subsurface would have had there: their value times ``max(1 + σ·g, 0)``, one
+        standard normal ``g`` per pixel for all three channels (the same field every
+        frame, as Cycles' noise is with its seed not animated), with ``σ`` the
+        settings' ``stand_in_gain`` times :func:`context_noise`, at most
+        :data:`STAND_IN_MAX`. Its output is kept only off the mask; the post's pixels
+        keep the first denoise's. Where ``σ`` is under :data:`STAND_IN_SKIP` (nothing
+        noisy round the post's pixels: a world background) the frame is denoised once.
+
+        Parameters
+        ----------
+        denoised : (H, W, C) float32, ``rgba`` denoised (this object's last run)
+        rgba : (H, W, 3|4) float, linear, the finished frame
+        mask : (H, W) bool, the post's pixels
+        albedo, normal : (H, W, 3) float or None, the raw guides of that run
+
+        Returns
+        -------
+        (H, W, C) float32, ``denoised`` with its pixels off the mask replaced.
+        """
+        mask = np.asarray(mask, dtype=bool)
+        if self.settings.stand_in_gain <= 0.0 or not mask.any() or mask.all():
+            return denoised
+        sigma = min(self.settings.stand_in_gain * context_noise(rgba, mask), STAND_IN_MAX)
+        if sigma < STAND_IN_SKIP:
+            return denoised
+        g = self._noise(*mask.shape)
+        noisy = np.array(rgba[..., :3], dtype=np.float32, copy=True)
+        noisy[mask] *= np.maximum(1.0 + sigma * g[mask], 0.0)[:, None]
+        rest = self._run_again(noisy, *self._guides(albedo, normal))
+        out = np.array(denoised, dtype=np.float32, copy=True)
+        out[..., :3][~mask] = rest[~mask]
+        return out
+
     def finished(self, rgba: np.ndarray, result, frame, guides) -> np.ndarray:
         """The finished frame ``rgba`` of ``result`` (a method's FrameResult on
         ``frame``, its passes) denoised as the settings ask: the whole frame, guided
         by ``guides`` ((albedo, normal), :func:`guides_of`), or, with
         ``subsurface_only`` (EEVEE), the post's lighting alone.
+
+        With ``stand_in_gain`` a whole frame is denoised twice: the post's pixels keep
+        the first denoise's values, every other pixel takes a second one's, of the
+        frame with stand-in noise on the post's pixels (:meth:`beside_stand_in`).
 
         EEVEE's passes carry no noise: the noise of its finished frame is that of the
         post's lighting L (:attr:`FrameResult.sss`, no albedo in it, the passes' B off
@@ -307,7 +466,8 @@ class FrameDenoiser:
         (H, W, 4) float32: denoised RGB, ``rgba``'s alpha.
         """
         if not self.settings.subsurface_only:
-            return self(rgba, *guides, result.mask)
+            denoised = self(rgba, *guides, result.mask)
+            return self.beside_stand_in(denoised, rgba, result.mask, *guides)
         lighting = np.ones((*result.sss.shape[:2], 4), np.float32)
         lighting[..., :3] = result.sss
         out = np.array(rgba, dtype=np.float32, copy=True)

@@ -240,6 +240,30 @@ class Filters:
             self._check()
         return self.images["output"][::-1].copy()
 
+    def run_again(self, color: np.ndarray) -> np.ndarray:
+        """The denoised ``color``, guided by the guides of the last :meth:`run`: only the
+        main filter runs, on the guides as that run left them (prefiltered already).
+
+        Bit for bit ``run(color, albedo, normal)`` with the last run's guides, for the
+        cost of the main filter alone.
+
+        Parameters
+        ----------
+        color : (H, W, >=3) float, linear, top row first, the last run's size
+
+        Returns
+        -------
+        (H, W, 3) float32, top row first.
+        """
+        if not self._finalizer.alive:
+            raise OidnError("the filters were closed")
+        if self.size != tuple(color.shape[:2]):
+            raise ValueError("run_again needs an image of the last run's size")
+        self.images["color"][...] = color[::-1, :, :3]
+        self.lib.oidnExecuteFilter(self.filters[-1])
+        self._check()
+        return self.images["output"][::-1].copy()
+
     def close(self) -> None:
         """Release the filters and the device (safe to call twice)."""
         self._finalizer()

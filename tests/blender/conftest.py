@@ -342,6 +342,30 @@ def oidn():
     return _oidn
 
 
+def _delivered(noisy, albedo, normal, mask, sigma, prefilter, quality):
+    """The node's output on ``noisy`` for the post's pixels (``mask``), and on ``noisy``
+    with those pixels times ``max(1 + sigma·g, 0)`` for every other pixel: ``g`` one
+    standard normal per pixel, ``numpy.random.default_rng(0)`` over the frame's rows.
+    ``sigma`` 0 (or a mask of every pixel or none): the node's output on ``noisy``."""
+    mask = np.asarray(mask, dtype=bool)
+    first = _oidn(noisy, albedo, normal, prefilter, quality)
+    if sigma == 0 or not mask.any() or mask.all():
+        return first
+    g = np.random.default_rng(0).standard_normal(mask.shape).astype(np.float32)
+    stand_in = np.array(noisy[..., :3], dtype=np.float32, copy=True)
+    stand_in[mask] *= np.maximum(1.0 + np.float32(sigma) * g[mask], 0.0)[:, None]
+    second = _oidn(stand_in, albedo, normal, prefilter, quality)
+    return np.where(mask[..., None], first, second)
+
+
+@pytest.fixture
+def delivered_denoise():
+    """``delivered_denoise(noisy, albedo, normal, mask, sigma, prefilter, quality)``: a
+    whole finished frame denoised as Apply on Render and ``cvsss render`` deliver it, with
+    stand-in noise ``sigma``, from the Denoise node's outputs."""
+    return _delivered
+
+
 # -- the extension as users get it -------------------------------------------------------
 def _blender_ext() -> Path:
     """Blender's extension tool inside the bpy package (runs under plain Python)."""

@@ -338,6 +338,7 @@ def test_render_and_post_denoise_as_the_scene_asks(demo, tmp_path, capsys, oidn)
     assert cli.main(["render", str(blend), "--out", str(off), "--no-denoise", "--quiet"]) == 0
     sidecar = json.loads((on / "passes" / "0001.json").read_text())
     assert sidecar["denoise"]["prefilter"] == "NONE" and sidecar["denoise"]["quality"] == "FAST"
+    assert sidecar["denoise"]["stand_in_gain"] == 0.0  # under 64 samples: denoised once
     assert "denoise" not in json.loads((off / "passes" / "0001.json").read_text())
     denoised, plain = _composites(on, method), _composites(off, method)
     assert sorted(denoised) == sorted(plain) == [1, 2]

@@ -20,6 +20,7 @@ from cvsss.sss_addon.blender import standalone  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render import handlers  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.notes import scene_notes  # noqa: E402
 from cvsss.sss_addon.blender.apply_on_render.session import active_session  # noqa: E402
+from cvsss.sss_addon.blender.denoise_frame import context_noise  # noqa: E402
 
 pytestmark = pytest.mark.bpy
 
@@ -87,6 +88,12 @@ def _reference(scene, out: Path) -> dict[int, np.ndarray]:
     return {f: read_result(out / method / f"{f:04d}.exr")["Composite"] for f in FRAMES}
 
 
+def _masks(scene, out: Path) -> dict[int, np.ndarray]:
+    """The post's mask per frame of a :func:`_reference` run in ``out``: (H, W) bool."""
+    method = scene.sss_settings.method
+    return {f: read_result(out / method / f"{f:04d}.exr")["Mask"] > 0 for f in FRAMES}
+
+
 def _datablocks() -> tuple:
     """Scenes, node groups and images (but the SSS maps the post shows, on purpose)."""
     return (
@@ -96,10 +103,13 @@ def _datablocks() -> tuple:
     )
 
 
-def test_denoiser_and_multilayer_passes_as_the_scene_asks(scene, tmp_path, snapshot, oidn):
+def test_denoiser_and_multilayer_passes_as_the_scene_asks(
+    scene, tmp_path, snapshot, delivered_denoise
+):
     """With the scene's denoiser on, the delivered Combined is the finished frame denoised
     with the scene's prefilter and quality, guided by the pass render's Denoising Albedo
-    and Normal; Noisy Image is the finished frame before it. With it off, Combined is the
+    and Normal (the pixels off the post's mask by a second denoise with stand-in noise on
+    it); Noisy Image is the finished frame before it. With it off, Combined is the
     finished frame itself. A multilayer EXR holds the passes Blender's own render writes,
     and those the subsurface does not touch have its values."""
     layer = scene.view_layers[0]
@@ -110,9 +120,11 @@ def test_denoiser_and_multilayer_passes_as_the_scene_asks(scene, tmp_path, snaps
     for index, obj in enumerate(scene.objects):
         obj.pass_index = 40 + 3 * index  # the user's numbers, not the pass render's
     c = scene.cycles
+    c.samples = 64  # from 64 samples the pixels off the post's mask are denoised again
     c.denoising_prefilter, c.denoising_quality = "FAST", "BALANCED"
     c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
     expected = _reference(scene, tmp_path / "ref")
+    masks = _masks(scene, tmp_path / "ref")
     _exr(scene, tmp_path / "x", multilayer=True)
     c.use_denoising = True
     scene.sss_settings.apply_on_render = False
@@ -127,15 +139,22 @@ def test_denoiser_and_multilayer_passes_as_the_scene_asks(scene, tmp_path, snaps
     assert _datablocks() == blocks and active_session() is None
 
     for frame in FRAMES:
+        mask = masks[frame]
+        assert 0 < mask.mean() < 1
         f = _stack(off[frame], name + "Combined.", "RGB")
         np.testing.assert_allclose(f, expected[frame], rtol=1e-6, atol=1e-7)
         noisy = _stack(on[frame], name + "Noisy Image.", "RGB")
         np.testing.assert_array_equal(noisy, f)
         denoised = _stack(on[frame], name + "Combined.", "RGB")
-        want = oidn(
+        # The stand-in noise: 5× the noise round the post's pixels, at most 0.5.
+        sigma = min(5.0 * context_noise(noisy, mask), 0.5)
+        assert sigma > 0.01
+        want = delivered_denoise(
             noisy,
             _stack(on[frame], name + "Denoising Albedo.", "RGB"),
             _stack(on[frame], name + "Denoising Normal.", "XYZ"),
+            mask,
+            sigma,
             "Fast",
             "Balanced",
         )
