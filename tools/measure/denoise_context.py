@@ -18,7 +18,10 @@ error (×1000, the figures' exposure and display rule) summed over its pixels
 outside the post's mask:
 
 - ``plain``: the plain render, as Cycles denoised it;
-- ``F``: F denoised, what Apply on Render delivers;
+- ``F``: F denoised, what Apply on Render delivers (from 64 spp the pixels off
+  the post's mask from a second denoise beside stand-in noise,
+  ``FrameDenoiser.beside_stand_in``);
+- ``F, once``: F denoised once, as it is;
 - ``F, post ← plain noisy``: F with the post's pixels replaced by the plain
   render's noisy ones;
 - ``F, post + plain's noise``: the post's pixels keep their light and take the
@@ -40,6 +43,7 @@ import argparse
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import bpy
 import numpy as np
@@ -141,6 +145,10 @@ def main() -> int:
         for label in ("F", "F, post ← plain noisy", "F, post + plain's noise",
                       "F, post + pass noise", "F, post ← truth"):  # fmt: skip
             frames[label] = denoiser(rgba(inputs[label]), albedo, normal)[..., :3]
+        frames["F, once"] = frames["F"]
+        frames["F"] = denoiser.finished(
+            rgba(finished), SimpleNamespace(mask=mask), frame, (albedo, normal)
+        )[..., :3]
     k = frame_exposure(truth)
     shown = display(truth, k)
     errors = {label: ((display(image, k) - shown) ** 2).mean(-1) for label, image in frames.items()}
