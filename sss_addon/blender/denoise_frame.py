@@ -106,8 +106,7 @@ CONTEXT_REACH = 8
 #: Cycles' samples per pixel from which the finished frame is denoised twice. The second
 #: denoise costs OIDN's main filter whatever the samples, while the render's own time
 #: grows with them: below this it takes more of the frame's time than the 1.25× target
-#: leaves, where the parts left to Cycles are noisy enough that it gains least
-#: (docs/performance.md).
+#: leaves (docs/performance.md).
 STAND_IN_MIN_SAMPLES = 64
 
 
