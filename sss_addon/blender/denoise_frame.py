@@ -73,6 +73,7 @@ import bpy
 import numpy as np
 import OpenEXR
 
+from ...core.color import luminance
 from ...core.io.errors import OutputError
 from ...core.io.exr import quiet_native_stderr, read_channels
 from ...core.result import relit
@@ -289,7 +290,7 @@ def context_noise(rgb: np.ndarray, mask: np.ndarray, reach: int = CONTEXT_REACH)
     >>> context_noise(flat, mask)
     0.0
     """
-    y = np.asarray(rgb, dtype=np.float64)[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    y = luminance(np.asarray(rgb, dtype=np.float64)[..., :3])
     mask = np.asarray(mask, dtype=bool)
     p = np.pad(y, 1, mode="edge")
     neighbours = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]) / 4.0
@@ -375,21 +376,15 @@ class FrameDenoiser:
             )
         return (albedo if use_albedo else None, normal if use_albedo and use_normal else None)
 
-    def _run(self, rgba: np.ndarray, albedo, normal) -> np.ndarray:
-        """(H, W, 3) float32: OIDN's RGB of ``rgba`` with those guides (None: not used)."""
+    def _run(self, rgba: np.ndarray, albedo, normal, again: bool = False) -> np.ndarray:
+        """(H, W, 3) float32: OIDN's RGB of ``rgba`` with those guides (None: not used).
+        ``again``: the guides are the last run's, and on the CPU only the main filter
+        runs (:meth:`.oidn.Filters.run_again`)."""
         if self.filters is not None:
             try:
+                if again:
+                    return self.filters.run_again(rgba)
                 return self.filters.run(rgba, albedo, normal)
-            except oidn.OidnError as exc:
-                raise RenderError(f"denoising the finished frame failed: {exc}") from None
-        return compositor_denoise(rgba, albedo, normal, self.settings)
-
-    def _run_again(self, rgba: np.ndarray, albedo, normal) -> np.ndarray:
-        """:meth:`_run` on another image with the guides of the last run: on the CPU
-        only the main filter runs again (:meth:`.oidn.Filters.run_again`)."""
-        if self.filters is not None:
-            try:
-                return self.filters.run_again(rgba)
             except oidn.OidnError as exc:
                 raise RenderError(f"denoising the finished frame failed: {exc}") from None
         return compositor_denoise(rgba, albedo, normal, self.settings)
@@ -439,7 +434,7 @@ class FrameDenoiser:
         g = self._noise(*mask.shape)
         noisy = np.array(rgba[..., :3], dtype=np.float32, copy=True)
         noisy[mask] *= np.maximum(1.0 + sigma * g[mask], 0.0)[:, None]
-        rest = self._run_again(noisy, *self._guides(albedo, normal))
+        rest = self._run(noisy, *self._guides(albedo, normal), again=True)
         out = np.array(denoised, dtype=np.float32, copy=True)
         out[..., :3][~mask] = rest[~mask]
         return out

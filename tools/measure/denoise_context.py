@@ -43,7 +43,6 @@ import argparse
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import bpy
 import numpy as np
@@ -145,10 +144,12 @@ def main() -> int:
         for label in ("F", "F, post ← plain noisy", "F, post + plain's noise",
                       "F, post + pass noise", "F, post ← truth"):  # fmt: skip
             frames[label] = denoiser(rgba(inputs[label]), albedo, normal)[..., :3]
+        # The last run had the same guides: the second denoise of what Apply on Render
+        # delivers goes on from F's first (FrameDenoiser.finished, step by step).
         frames["F, once"] = frames["F"]
-        frames["F"] = denoiser.finished(
-            rgba(finished), SimpleNamespace(mask=mask), frame, (albedo, normal)
-        )[..., :3]
+        frames["F"] = denoiser.beside_stand_in(frames["F"], rgba(finished), mask, albedo, normal)[
+            ..., :3
+        ]
     k = frame_exposure(truth)
     shown = display(truth, k)
     errors = {label: ((display(image, k) - shown) ** 2).mean(-1) for label, image in frames.items()}

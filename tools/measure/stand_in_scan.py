@@ -25,8 +25,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from cvsss.core.color import luminance
 from cvsss.core.eval.users_frame import display, frame_exposure, subsurface_mask
-from cvsss.core.io.exr import read_channels, read_frame, read_result
+from cvsss.core.io.exr import read_channels, read_frame, read_result, read_rgb
 from cvsss.core.result import relit
 from cvsss.sss_addon.blender.denoise_frame import (
     STAND_IN_MAX,
@@ -40,14 +41,6 @@ GAINS = (0.0, 3.0, 4.0, 5.0)
 SIGMAS = (0.1, 0.2, 0.3)
 
 
-def combined(path: Path) -> tuple[np.ndarray, str]:
-    """(H, W, 3) float32 Combined of a multilayer EXR's first view layer, and its name."""
-    channels = read_channels(path)
-    key = next(k for k in sorted(channels) if k.endswith(".Combined.R"))
-    prefix = key[: -len("R")]
-    return np.stack([channels[prefix + c] for c in "RGB"], -1), key.split(".")[0]
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path, help="a denoise_context.py output folder")
@@ -55,9 +48,12 @@ def main() -> int:
     parser.add_argument("--frame", type=int, required=True)
     args = parser.parse_args()
     name = f"{args.frame:04d}.exr"
-    plain, layer = combined(args.out / "plain.exr")
-    truth, _ = combined(args.compare / "ground_truth" / "material" / name)
-    truth_off, _ = combined(args.compare / "ground_truth" / "off" / name)
+    channels = read_channels(args.out / "plain.exr")
+    layer = next(k for k in sorted(channels) if k.endswith(".Combined.R")).split(".")[0]
+    plain = np.stack([channels[f"{layer}.Combined.{c}"] for c in "RGB"], -1)
+    noisy = np.stack([channels[f"{layer}.Noisy Image.{c}"] for c in "RGB"], -1)
+    truth = read_rgb(args.compare / "ground_truth" / "material" / name)
+    truth_off = read_rgb(args.compare / "ground_truth" / "off" / name)
     k = frame_exposure(truth)
     sss = subsurface_mask(truth, truth_off, k)
     whole = np.ones_like(sss)
@@ -80,12 +76,9 @@ def main() -> int:
     noise = context_noise(rgba, mask)
     # The plain render's own noise on the post's pixels: its Noisy Image against the
     # ground truth, the median absolute deviation of the relative luminance error.
-    luminance = np.array([0.2126, 0.7152, 0.0722])
-    channels = read_channels(args.out / "plain.exr")
-    noisy = np.stack([channels[f"{layer}.Noisy Image.{c}"] for c in "RGB"], -1) @ luminance
-    y = truth @ luminance
+    y, y_noisy = luminance(truth), luminance(noisy)
     kept = mask & (y > 1e-3 * np.median(y))
-    relative = (noisy[kept] - y[kept]) / y[kept]
+    relative = (y_noisy[kept] - y[kept]) / y[kept]
     own = 1.4826 * float(np.median(np.abs(relative - np.median(relative))))
     print(
         f"{args.out.name} frame {args.frame}: noise round the post's pixels {noise:.3f}; "
