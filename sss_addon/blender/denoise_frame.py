@@ -176,8 +176,8 @@ class DenoiseSettings:
         line = f"{how}, prefilter {self.prefilter}, {self.quality}, {guides[self.guides]}"
         if self.stand_in_gain > 0.0:
             line += (
-                "; the pixels off the post's mask denoised again beside stand-in noise "
-                f"({self.stand_in_gain:g}× their surroundings')"
+                "; where noisy pixels border the post's, those denoised again beside "
+                f"stand-in noise ({self.stand_in_gain:g}× theirs)"
             )
         return line
 

@@ -197,7 +197,10 @@ def test_the_scene_denoises_twice_from_64_samples():
         bpy.data.scenes.remove(scene)
     assert below.stand_in_gain == 0.0 and "stand-in" not in below.describe()
     assert at.stand_in_gain == 5.0
-    assert at.describe().endswith("beside stand-in noise (5× their surroundings')")
+    assert at.describe().endswith(
+        "; where noisy pixels border the post's, those denoised again beside stand-in noise "
+        "(5× theirs)"
+    )
     assert DenoiseSettings.from_dict(at.to_dict()) == at
     assert DenoiseSettings.from_dict({"quality": "HIGH"}).stand_in_gain == 0.0  # old sidecars
     with pytest.raises(ValueError, match="stand_in_gain"):
