@@ -1,14 +1,15 @@
 """Where Apply on Render's frame parts from Cycles along one object's borders with others.
 
-Reads a ``cvsss compare`` run (its ground truth and its Cycles renders, plain and
-Apply on Render) and the file it compared, renders the file's Object Index at its
-resolution (Cycles, 1 sample: which object each pixel shows), and prints, for the
+Reads a ``cvsss compare`` run (its ground truth, with each frame's Object Index,
+and its Cycles renders, plain and Apply on Render) and prints, for the
 pixels of ``--object`` within 1, 2 and 4 px of each other object (rings: a pixel
-counts in the nearest ring only), the squared display error against the ground
-truth summed over the ring and over the frames, and the mean signed display error
+counts in the nearest ring only; pixels summed over the frames), the squared
+display error against the ground truth summed over the ring and over the frames, and the mean signed display error
 (×1000), Apply on Render beside the plain render; then the rest of the object.
 Display space as ``cvsss compare`` scores it (core.eval.users_frame: the ground
-truth's exposure, clipped, sRGB-encoded). From the repository root::
+truth's exposure, clipped, sRGB-encoded). A run from before the compare kept the
+Object Index (no ``ground_truth/objects/``) has it rendered from the file it
+compared (Cycles, 1 sample). From the repository root::
 
     .venv/bin/cvsss compare out/demo/flash/flash.blend --frames 21-22 --out out/contact \\
         --engine CYCLES --samples 16
@@ -21,6 +22,7 @@ truth's exposure, clipped, sRGB-encoded). From the repository root::
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 from pathlib import Path
 
@@ -59,6 +61,18 @@ def object_index(blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
     return np.rint(index).astype(int), names
 
 
+def frame_objects(compared: Path, blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
+    """The Object Index and object names of one frame of a ``cvsss compare`` run: the
+    run's own (``ground_truth/objects/####.exr`` and ``.json``), else rendered from
+    ``blend`` (:func:`object_index`)."""
+    path = compared / "ground_truth" / "objects" / f"{frame:04d}.exr"
+    if not path.exists():
+        return object_index(blend, frame)
+    names = json.loads(path.with_suffix(".json").read_text())
+    index = np.rint(read_pass(path, "Object Index")).astype(int)
+    return index, {int(number): name for number, name in names.items()}
+
+
 def rings(index: np.ndarray, target: int, names: dict[int, str]) -> dict[str, np.ndarray]:
     """{label: (H, W) bool}: the target's pixels in each ring round each other object."""
     mine = index == target
@@ -87,14 +101,20 @@ def main() -> None:
     args = ap.parse_args()
     first, last = parse_frames(args.frames)
     frames = range(first, last + 1)
-    index, names = object_index(args.blend, frames[0])
-    target = next((n for n, name in names.items() if name == args.object), None)
-    if target is None:
-        raise SystemExit(f"error: {args.blend} has no object {args.object!r}")
-    bands = rings(index, target, names)
     renders = args.compared / "renders" / f"cycles_{args.samples}_denoised"
-    sums = {label: np.zeros((2, 2)) for label in bands}  # [who][sse, signed]
+    sums: dict[str, np.ndarray] = {}  # label -> [who][sse, signed]
+    pixels: dict[str, int] = {}
     for frame in frames:
+        # Each frame's own Object Index: objects move (the boids' moth, a flickering
+        # candle's flame), so the first frame's would misplace the rings of the others.
+        index, names = frame_objects(args.compared, args.blend, frame)
+        target = next((n for n, name in names.items() if name == args.object), None)
+        if target is None:
+            raise SystemExit(f"error: {args.blend} has no object {args.object!r}")
+        bands = rings(index, target, names)
+        for label, mask in bands.items():
+            sums.setdefault(label, np.zeros((2, 2)))
+            pixels[label] = pixels.get(label, 0) + int(mask.sum())
         truth = read_rgb(args.compared / "ground_truth" / args.variant / f"{frame:04d}.exr")
         k = frame_exposure(truth)
         gt = display(truth, k)
@@ -106,10 +126,10 @@ def main() -> None:
                 sums[label][who] += squared[mask].sum(), error[mask].sum()
     print(f"{'ring':32s} {'pixels':>7s} {'SSE apply':>10s} {'SSE plain':>10s} "
           f"{'mean err apply':>15s} {'mean err plain':>15s}")  # fmt: skip
-    for label, mask in bands.items():
-        n = mask.sum() * len(frames)
+    for label in sorted(pixels, key=lambda label: label == "rest"):
+        n = pixels[label]
         (sse_a, err_a), (sse_p, err_p) = sums[label]
-        print(f"{label:32s} {mask.sum():7d} {sse_a:10.3f} {sse_p:10.3f} "
+        print(f"{label:32s} {n:7d} {sse_a:10.3f} {sse_p:10.3f} "
               f"{1000 * err_a / n:+15.2f} {1000 * err_p / n:+15.2f}")  # fmt: skip
 
 

@@ -1,9 +1,9 @@
 """Which objects hold a ``cvsss compare`` frame's error on the subsurface pixels.
 
-Reads a ``cvsss compare`` run and the file it compared, renders the file's
-Object Index at its resolution (``contact_bands.object_index``), and prints per
-object, for every finished frame of one setting (``renders/<setting>/``, plain
-and Apply on Render): its subsurface pixels, its squared display error summed
+Reads a ``cvsss compare`` run (with each frame's Object Index, or for a run from
+before the compare kept it, the file it compared: ``contact_bands.frame_objects``)
+and prints per object, for every finished frame of one setting
+(``renders/<setting>/``, plain and Apply on Render): its subsurface pixels, its squared display error summed
 over them and over the frames (×1000), and the gain in dB of Apply on Render
 over the plain render on that object alone. With ``--effect`` the error is the
 subsurface effect's (SPEC §12, ``core.eval.users_frame``: the change
@@ -26,7 +26,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from contact_bands import object_index
+from contact_bands import frame_objects
 
 from cvsss.core.eval.users_frame import display, frame_exposure, object_errors, subsurface_mask
 from cvsss.core.io.exr import read_rgb
@@ -51,13 +51,13 @@ def main() -> int:
     parser.add_argument("--truths", type=Path, help="truth_noise.py's OUT (seed_<n>/ folders)")
     args = parser.parse_args()
     first, last = parse_frames(args.frames)
-    index, names = object_index(args.blend, first)
     renders = args.compare / "renders" / args.setting
     seeds = sorted(args.truths.glob("seed_*")) if args.truths else []
     sums: dict[tuple[str, str], float] = {}
     pixels: dict[str, int] = {}
     for number in range(first, last + 1):
         name = f"{number:04d}.exr"
+        index, names = frame_objects(args.compare, args.blend, number)
         truth = read_rgb(args.compare / "ground_truth" / args.variant / name)
         truth_off = read_rgb(args.compare / "ground_truth" / "off" / name)
         off = read_rgb(renders / f"off_{name}") if args.effect else None
