@@ -27,6 +27,9 @@ repository root::
 
 The method is ``--method`` (default ``as_ccv``); a temporal method's frames
 after the first differ from Apply on Render's, which warms up before them.
+``--backend numpy`` posts with the NumPy backend, where a rule not yet an
+option can be tried in a scratch edit of ``core/mc/samples.py`` before its
+twin in the compiled pass is written (the backends agree to float rounding).
 """
 
 from __future__ import annotations
@@ -51,10 +54,11 @@ def finished(path: Path) -> np.ndarray:
     return np.stack([channels[f"Composite.{c}"] for c in "RGB"], axis=-1)
 
 
-def post(passes: Path, out: Path, method: str, option: str, value: str) -> Path:
+def post(passes: Path, out: Path, method: str, backend: str, option: str, value: str) -> Path:
     """Run ``cvsss post`` on ``passes`` with ``--option value``; the method's folder."""
     command = [sys.executable, "-m", "cvsss.sss_addon.cli.main", "post", str(passes),
-               "--out", str(out), "--method", method, "--quiet", f"--{option}", value]  # fmt: skip
+               "--out", str(out), "--method", method, "--backend", backend, "--quiet",
+               f"--{option}", value]  # fmt: skip
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return out / method
 
@@ -85,6 +89,9 @@ def main() -> int:
     parser.add_argument("--object", required=True, help="the object whose borders to score")
     parser.add_argument("--ring", type=int, default=4, help="px round the other objects")
     parser.add_argument("--method", default="as_ccv")
+    parser.add_argument(
+        "--backend", default="auto", help="cvsss post's; numpy runs a scratch change to core/mc/"
+    )
     parser.add_argument("--variant", default="material", help="the compare's method variant")
     args = parser.parse_args()
     frames = sorted(int(p.stem) for p in args.passes.glob("[0-9]*.exr"))
@@ -125,7 +132,8 @@ def main() -> int:
     row("plain", plain)
     with tempfile.TemporaryDirectory() as folder:
         for value in args.values.split(","):
-            result = post(args.passes, Path(folder) / value, args.method, args.option, value)
+            out = Path(folder) / value
+            result = post(args.passes, out, args.method, args.backend, args.option, value)
             row(f"{value}", score({f: finished(result / f"{f:04d}.exr") for f in frames}))
     return 0
 
