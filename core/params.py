@@ -51,6 +51,13 @@ MAX_SPP = 4096
 #: camera alike (whose |n·v| differs only by where they are on the image) never do
 #: (docs/explanation/design.md §5.6).
 CONTACT_FACING = 1.5
+#: ``contact``: where a pixel's surface ends on another object (a slab's front face on
+#: the floor), the share of a sample's light it loses on that object within
+#: CONTACT_FOOT·contact·d of it, fading to none at contact·d: fitted to Cycles'
+#: Christensen-Burley at the foot of the demo's slab, 26 % darker in its lowest row
+#: and fading within about a d (docs/explanation/accuracy.md §2.2).
+CONTACT_LOSS = 0.7
+CONTACT_FOOT = 0.25
 
 #: Separable SSS (Jimenez et al. 2015): kernels, taps per 1D pass, surface rules, tap reads.
 KERNELS = ("pre_integrated", "svd1", "svd2", "svd3", "svd4", "gaussians", "artist")
@@ -433,20 +440,23 @@ class SSSParams(_Params):
         advanced=True,
     )
     contact: float = param(
-        0.2,
+        1.4,
         label="Contact Height",
         help="With the Object Index pass: a sample never takes light from another object "
-        "(Cycles does not scatter between objects); one that lands on another object that "
-        "continues the pixel's surface in depth, not below its tangent plane, counts as the "
-        "pixel's surface running on under that object, unlit (as under a block resting on "
-        "a table), where the pixel lies within contact·r of that object's surface (r the "
-        "sample's radius; the two touch there) or that object faces the camera more "
-        "squarely than the pixel (it stands on the pixel's surface and hides it). 0 leaves "
-        "such samples to the hidden-surface rules (Mirror Hidden Light, Hidden Light)",
-        unit="fraction of the sample radius",
+        "(Cycles does not scatter between objects). One that lands on another object that "
+        "continues the pixel's surface in depth, not below its tangent plane, stands for "
+        "the pixel's surface where it meets that object. If that object faces the camera "
+        "more squarely than the pixel (a block standing on a table top seen at a slant), "
+        "it hides the surface, which runs on under it unlit. Otherwise the pixel's surface "
+        "ends on it (a slab's front face on the floor) and, where the pixel lies within "
+        "contact·d of that object's surface (d the material's scattering length), loses a "
+        "share of the sample's light: 70 % up to a quarter of that height, fading to none "
+        "at it, as Cycles' Christensen-Burley loses light at a slab's foot. 0 leaves such "
+        "samples to the hidden-surface rules (Mirror Hidden Light, Hidden Light)",
+        unit="multiple of the scattering length d",
         lo=0.0,
         ui_hi=1e6,
-        soft=(0.0, 2.0),
+        soft=(0.0, 4.0),
         advanced=True,
     )
     temporal_mode: str = param(

@@ -16,12 +16,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Geometry
-from ..params import CONTACT_FACING
+from ..params import CONTACT_FACING, CONTACT_FOOT, CONTACT_LOSS
 from ..profiles.base import Profile
 from ..profiles.burley import BurleyProfile, pdf_from_table
 from ..sampling.qmc import DIRECTION_BITS, DIRECTIONS, pixel_hashes, r2_fixed
 
 _FACING = np.float32(CONTACT_FACING)
+_LOSS = np.float32(CONTACT_LOSS)
+_FOOT = np.float32(CONTACT_FOOT)
+#: A touching sample's point on the centre's plane counts as above the other object's
+#: plane beyond this share of its radius (not float rounding on a plane both share).
+_ABOVE = np.float32(1e-4)
 
 # The direction table's columns, contiguous: a strided column costs the sampling
 # loop several times a contiguous one.
@@ -282,6 +287,8 @@ def batch_sums(
         normal_cm = np.ascontiguousarray(surf.normal.T)  # (3, H·W): one row per component
     objects = geom.objects
     touch = np.float32(contact) if objects is not None and contact > 0 else None
+    if touch is not None:
+        contact_scale = np.asarray(profile.contact_scale(), dtype=np.float32)
     for a, b in _chunks(pix.counts, chunk_samples):
         c = pix.counts[a:b]
         n = int(c.sum())
@@ -372,19 +379,23 @@ def batch_sums(
                 near |= (w_pl > 0) & (np.abs(e) <= tol * w_pl)
         ok &= near
         # Objects: light never passes from one object to another. A sample on another
-        # object that stands on the centre's surface can stand for that surface running
-        # on hidden under it, unlit (core.mc.estimator's module doc, *Objects*).
-        touching = None
+        # object that meets the centre's surface stands for that surface where it meets
+        # it: running on hidden under it unlit, or ending on it and losing part of its
+        # light (core.mc.estimator's module doc, *Objects*).
+        touching = share = None
         if objects is not None:
             other = np.take(objects, q, mode="clip") != np.repeat(np.take(objects, pix.idx[a:b]), c)
             other &= inside
             ok &= ~other
             if touch is not None:
-                touching = _touching(
-                    other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix, surf, local
-                )
+                reach = np.take(contact_scale, mat)
+                reach *= touch
+                touching, share = _touching(
+                    other, near, q, qx, qy, fx, fy, zq, zp, px, py, centre, r, reach, pix,
+                    surf, local,
+                )  # fmt: skip
                 if not touching.any():
-                    touching = None
+                    touching = share = None
         # Hidden surface: a rejected sample on the image that landed on the background,
         # another material or object, or the centre's surface beyond the depth tolerance
         # (not in front of the centre, an occluder, nor touching it). With ``mirror`` it
@@ -437,7 +448,25 @@ def batch_sums(
         for ci in range(3):
             np.take(light_cm[ci], q, out=diff[ci], mode="clip")
         if touching is not None:
+            # The share of light a touching sample keeps, of its mirror image's light
+            # (where the slot reads mirror images and the opposite pixel is on the
+            # centre's surface) or else of the centre's; none where another object hides
+            # the surface.
             diff[:, touching] = np.float32(0.0)
+            kept = touching & (share > 0)
+            if kept.any():
+                source = centre_idx
+                if mirror is not None:
+                    opposite = _mirrored(
+                        kept & np.take(mirror, mat), px, py, fx, fy, zp, tol, mat, centre_idx,
+                        slots, objects, depth32, w, h, ox, oy,
+                    )  # fmt: skip
+                    source = np.where(opposite >= 0, opposite, centre_idx)
+                at = np.flatnonzero(kept)
+                part = np.take(share, at)
+                src = np.take(source, at)
+                for ci in range(3):
+                    diff[ci, at] = part * np.take(light_cm[ci], src)
         centre_rep = np.repeat(centre_light[:, a:b], c, axis=1)
 
         if surf is not None:
@@ -566,31 +595,43 @@ def _mirrored(
     return out
 
 
-def _touching(other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix: Pixels, surf, local):
-    """(n,) bool: samples on ``other`` objects where the centre's surface runs on hidden
-    under that object, unlit (:mod:`core.mc.estimator`'s module doc, *Objects*).
+def _touching(
+    other, near, q, qx, qy, fx, fy, zq, zp, px, py, centre, r, reach, pix: Pixels, surf, local
+):
+    """(n,) bool and (n,) float32: the samples on ``other`` objects that stand for the
+    centre's surface where it meets that object, and the share of its light each keeps
+    (:mod:`core.mc.estimator`'s module doc, *Objects*).
 
     Such a sample follows the centre's surface in depth (``near``: the depth test a
-    sample of the centre's own object passes) and is not below its tangent plane; and
-    either the centre lies within ``touch·r`` of the other object's tangent plane at
-    the landing point (the two touch there), or the other object faces the camera
-    :data:`core.params.CONTACT_FACING` times more squarely than the centre (it stands
-    on the centre's surface and hides it). Without normals (planar weights) both
-    planes face the camera and the test is the depth difference within ``touch·r``.
-    Only the ``other`` samples are computed; ``local`` holds each sample's pixel (index
-    into ``pix``); ``q`` each sample's landing pixel.
+    sample of the centre's own object passes) and is not below its tangent plane. If
+    the other object faces the camera :data:`core.params.CONTACT_FACING` times more
+    squarely than the centre, it hides the surface, which runs on under it unlit (share
+    0). Otherwise the surface ends on it: where the centre lies within ``reach``
+    (contact·d) of the other object's tangent plane at the landing point, at a height
+    h, the sample keeps ``1 − CONTACT_LOSS·min((reach − h) / (reach − CONTACT_FOOT·reach),
+    1)`` of its light, all of it where its point on the centre's tangent plane lies above
+    the other object's plane (the landing pixel only holds part of the centre's surface
+    there, by more than ``_ABOVE·r``). Without normals (planar weights) both planes face
+    the camera and h is the depth difference. Only the ``other`` samples are computed;
+    ``local`` holds each sample's pixel (index into ``pix``); ``q`` each sample's landing
+    pixel, ``(fx, fy)`` its centre; ``r`` its radius, ``reach`` (n,) float32.
     """
     at = np.flatnonzero(other)
     touching = np.zeros(other.size, bool)
+    share = np.zeros(other.size, np.float32)
     if at.size == 0:
-        return touching
+        return touching, share
     zq = np.take(zq, at)
-    lim = touch * np.take(r, at)
+    zp = np.take(zp, at)
+    reach = np.take(reach, at)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        dz = zq - np.take(zp, at)
+        dz = zq - zp
         if pix.frame is None:
-            touching[at] = np.abs(dz) <= lim
-            return touching
+            height = np.abs(dz)
+            ends = height < reach
+            touching[at] = ends
+            share[at] = np.where(ends, _kept(height, reach), np.float32(0.0))
+            return touching, share
         unit_x, unit_y = (np.float32(v) for v in surf.unit)
         cx, cy = (np.float32(v) for v in surf.centre)
         sx, sy = np.take(qx, at), np.take(qy, at)
@@ -600,20 +641,57 @@ def _touching(other, near, q, qx, qy, zq, zp, px, py, centre, r, touch, pix: Pix
         nx, ny, nz = (np.take(pix.frame[k], li) for k in range(3))
         qi = np.take(q, at)
         mx, my, mz = (np.take(surf.normal[:, k], qi) for k in range(3))
-        height = dx * nx
-        height += dy * ny
-        height += dz * nz
-        follows = np.take(near, at) & (height >= 0)
+        above = dx * nx
+        above += dy * ny
+        above += dz * nz
+        follows = np.take(near, at) & (above >= 0)
         if surf.ortho:
             face_p, face_q = np.abs(nz), np.abs(mz)
         else:
             face_p = _facing(np.take(px, at), np.take(py, at), nx, ny, nz, cx, cy, unit_x, unit_y)
             face_q = _facing(sx, sy, mx, my, mz, cx, cy, unit_x, unit_y)
-        apart = dx * mx
-        apart += dy * my
+        hides = follows & (face_q > _FACING * face_p)
+        # The other object's plane through the landing pixel's own point (its centre at
+        # its depth: the continuous position at that depth is off a slanted plane).
+        gx, gy = _offset(
+            np.take(fx, at), np.take(fy, at), zq, centre, cx, cy, unit_x, unit_y, surf.ortho
+        )
+        apart = gx * mx
+        apart += gy * my
         apart += dz * mz
-        touching[at] = follows & ((np.abs(apart) <= lim) | (face_q > _FACING * face_p))
-    return touching
+        height = np.abs(apart)
+        ends = follows & ~hides & (height < reach)
+        kept = _kept(height, reach)
+        # The sample's point on the centre's tangent plane against that plane.
+        w = np.take(pix.plane[0], li) * sx
+        w += np.take(pix.plane[1], li) * sy
+        w += np.take(pix.plane[2], li)
+        if surf.ortho:
+            zh = np.where(np.isfinite(w), w, zp)
+        else:
+            zh = np.where(w > 0, np.float32(1.0) / w, zp)
+        hx, hy = _offset(sx, sy, zh, centre, cx, cy, unit_x, unit_y, surf.ortho)
+        hx -= gx
+        hy -= gy
+        side = mx * hx
+        side += my * hy
+        side += mz * ((zh - zp) - dz)
+        # Above by more than float rounding on a shared plane.
+        kept = np.where(side > _ABOVE * np.take(r, at), np.float32(1.0), kept)
+        touching[at] = hides | ends
+        share[at] = np.where(ends, kept, np.float32(0.0))
+    return touching, share
+
+
+def _kept(height, reach):
+    """(n,) float32: the share of its light a sample keeps where the centre's surface ends
+    on another object at ``height`` of it (both (n,) float32, scene units), for
+    ``height < reach``."""
+    lost = reach - height
+    lost /= reach - _FOOT * reach
+    np.minimum(lost, np.float32(1.0), out=lost)
+    lost *= _LOSS
+    return np.float32(1.0) - lost
 
 
 def _facing(sx, sy, nx, ny, nz, cx, cy, unit_x, unit_y) -> np.ndarray:

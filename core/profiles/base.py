@@ -36,6 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Burley's CDF at r = d, 1 − (e^−1 + 3·e^−1/3)/4: the share of its light within d.
+CONTACT_SHARE = 1.0 - (np.exp(-1.0) + 3.0 * np.exp(-1.0 / 3.0)) / 4.0
+
 
 @dataclass
 class Region:
@@ -110,3 +113,22 @@ class Profile(ABC):
     def describe(self, slot: int) -> dict:
         """Human-readable parameters of a slot (for reports and the UI)."""
         return {"profile": self.name, "slot": int(slot)}
+
+    def contact_scale(self) -> np.ndarray:
+        """(K,) float32, scene units: each slot's scattering length for the contact rule
+        (SSSParams.contact): the largest over the channels of the radius within which
+        :data:`CONTACT_SHARE` of the profile's light scatters, which is Burley's d.
+
+        Read off the radial density on a log grid of radii (1e-7 to 1e4 scene units,
+        trapezoids); 0 for a slot that does not scatter.
+        """
+        radii = np.geomspace(1e-7, 1e4, 4097)
+        out = np.zeros(self.n_slots, np.float32)
+        for slot in np.flatnonzero(self.scatters()):
+            density = self.pdf_channels(radii, np.full(radii.size, slot)).astype(np.float64)
+            steps = 0.5 * (density[:, 1:] + density[:, :-1]) * np.diff(radii)
+            cdf = np.cumsum(steps, axis=1)
+            cdf /= np.maximum(cdf[:, -1:], 1e-300)
+            at = [np.searchsorted(c, CONTACT_SHARE) for c in cdf]
+            out[slot] = max(radii[min(i + 1, radii.size - 1)] for i in at)
+        return out

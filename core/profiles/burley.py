@@ -417,6 +417,9 @@ class BurleyProfile(Profile):
     def chromatic(self):
         return np.any(self.d[:, 1:] != self.d[:, :1], axis=1)
 
+    def contact_scale(self):
+        return self.d.max(axis=1).astype(np.float32)
+
     def region(self, r0, mat, backend="numpy"):
         return burley_region(self, r0, mat, backend=backend)
 

@@ -492,6 +492,9 @@ class MixedProfile(Profile):
     def chromatic(self):
         return self._pick("chromatic")
 
+    def contact_scale(self):
+        return self._pick("contact_scale")
+
     def region(self, r0, mat, backend="numpy"):
         r0 = np.asarray(r0, dtype=np.float64)
         mat = np.asarray(mat)

@@ -34,6 +34,7 @@ import types
 import numba
 import numpy as np
 
+from ...params import CONTACT_FOOT, CONTACT_LOSS
 from ...sampling.qmc import DIRECTION_BITS, R2_STEP_U32
 from .common import (
     _EIGHT,
@@ -52,6 +53,12 @@ from .common import (
 
 #: Geometry modes of the sampling pass.
 PLANAR, PERSPECTIVE, ORTHO = 0, 1, 2
+#: The contact rule's loss where a surface ends on another object (core.params).
+_LOSS = np.float32(CONTACT_LOSS)
+_FOOT = np.float32(CONTACT_FOOT)
+#: Above the other object's plane beyond this share of the sample's radius (as
+#: core.mc.samples).
+_ABOVE = np.float32(1e-4)
 #: Samples that go through each stage together (see pixel_sums): enough independent
 #: work to overlap the latencies of the reads, square roots and divisions (8 measured
 #: 60 % slower per sample: stage 3 then runs scalar; 32 the same).
@@ -98,6 +105,16 @@ def _normal_z(mx, my, signed):
     area carries z's sign (:func:`texels`)."""
     z2 = max(np.float32(1.0) - (mx * mx + my * my), np.float32(0.0))
     return np.float32(math.copysign(np.sqrt(z2), signed))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _kept(height, reach):
+    """The share of its light a sample keeps where the centre's surface ends on another
+    object at ``height`` of it, for ``height < reach`` (float32; as
+    :func:`core.mc.samples._kept`)."""
+    lost = (reach - height) / (reach - _FOOT * reach)
+    lost = min(lost, np.float32(1.0)) * _LOSS
+    return np.float32(1.0) - lost
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -281,6 +298,7 @@ def _pixel_sums(
         b_fill = np.empty(BATCH, np.bool_)
         b_touch = np.zeros(BATCH, np.bool_)
         b_mir = np.zeros(BATCH, np.bool_)
+        b_keep = np.zeros(BATCH, np.float32)
         b_w = np.empty((3, BATCH), np.float32)
         idch = np.empty(3, np.float32)
         # R2 word offsets of a batch's lanes: j·a mod 2**32.
@@ -442,6 +460,14 @@ def _pixel_sums(
             obj = np.floor(key * inv_k)
             area_p = abs(texel[c8 + _FOUR])
             use_touch = use_obj and touch > zero
+            # The contact rule's reach, contact·d (d the slot's largest, as
+            # Profile.contact_scale).
+            dmax = dtab[mat, 0]
+            if dtab[mat, 1] > dmax:
+                dmax = dtab[mat, 1]
+            if dtab[mat, 2] > dmax:
+                dmax = dtab[mat, 2]
+            reach = np.float32(dmax) * touch
             # How squarely the centre faces the camera, |n·v| (the contact test's facing
             # branch compares another object's against it).
             if mode == ORTHO:
@@ -573,14 +599,18 @@ def _pixel_sums(
                     zq = fb[_ROW_ZQ + j]
                     ok = False
                     touching = False
+                    keep = zero
                     area_t = zero
                     if inside and use_touch and np.floor(fb[_ROW_K + j] * inv_k) != obj:
-                        # Another object: does the centre's surface run on hidden under it,
-                        # where the two touch (core.mc.estimator's module doc, *Objects*)?
+                        # Another object: does the centre's surface meet it here, running
+                        # on hidden under it or ending on it (core.mc.estimator's module
+                        # doc, *Objects*)?
                         dz = zq - zp
-                        lim = touch * fb[_ROW_R + j]
                         if mode == PLANAR:
-                            touching = abs(dz) <= lim
+                            height = abs(dz)
+                            if height < reach:
+                                touching = True
+                                keep = _kept(height, reach)
                         else:
                             qx = fb[_ROW_QX + j]
                             qy = fb[_ROW_QY + j]
@@ -604,13 +634,43 @@ def _pixel_sums(
                                 face_q = abs(vx * mx + vy * my + mz) / np.sqrt(
                                     vx * vx + vy * vy + one
                                 )
-                            near_q = abs(dx * mx + dy * my + dz * mz) <= lim
-                            touching = follows & (near_q | (face_q > facing * face_p))
+                            hides = follows & (face_q > facing * face_p)
+                            # The other object's plane through the landing pixel's own
+                            # point (its centre at its depth).
+                            fx = fb[_ROW_FX + j]
+                            fy = fb[_ROW_FY + j]
+                            if mode == ORTHO:
+                                lx = (fx - px) * unit_x
+                                ly = (fy - py) * unit_y
+                            else:
+                                lx = ((fx - cx) * zq - (px - cx) * zp) * unit_x
+                                ly = ((fy - cy) * zq - (py - cy) * zp) * unit_y
+                            height = abs(lx * mx + ly * my + dz * mz)
+                            ends = follows & (not hides) & (height < reach)
+                            touching = hides | ends
+                            if ends:
+                                keep = _kept(height, reach)
+                                # Its point on the centre's tangent plane against that plane:
+                                # above it, the landing pixel holds the centre's surface there.
+                                wq = pa * qx + pb * qy + pc
+                                if mode == ORTHO:
+                                    zh = wq if np.isfinite(wq) else zp
+                                    hx = (qx - px) * unit_x
+                                    hy = (qy - py) * unit_y
+                                else:
+                                    zh = one / wq if wq > zero else zp
+                                    hx = ((qx - cx) * zh - (px - cx) * zp) * unit_x
+                                    hy = ((qy - cy) * zh - (py - cy) * zp) * unit_y
+                                side = mx * (hx - lx) + my * (hy - ly) + mz * ((zh - zp) - dz)
+                                if side > _ABOVE * fb[_ROW_R + j]:
+                                    keep = one
                     fill = False
                     mirrored = False
                     if touching:
-                        # Unlit, at its point of the centre's tangent plane (the plane's
-                        # depth along the sample's ray, the centre's area element).
+                        # At its point of the centre's tangent plane (the plane's depth
+                        # along the sample's ray, the centre's area element), keeping its
+                        # share of the light of its mirror image or else of the centre
+                        # (none where another object hides the surface).
                         ok = True
                         if mode != PLANAR:
                             wq = pa * fb[_ROW_QX + j] + pb * fb[_ROW_QY + j] + pc
@@ -621,6 +681,18 @@ def _pixel_sums(
                                 zq = one / wq if wq > zero else zp
                                 ratio = zq / zp
                                 area_t = area_p * ratio * ratio
+                        q = centre
+                        if keep > zero and mirror[mat]:
+                            mxf = np.float32(2.0) * px - fb[_ROW_FX + j]
+                            myf = np.float32(2.0) * py - fb[_ROW_FY + j]
+                            mix = np.int64(np.int32(mxf)) - ox
+                            miy = np.int64(np.int32(myf)) - oy
+                            if (mix >= 0) & (mix < w) & (miy >= 0) & (miy < h):
+                                qm = miy * w + mix
+                                m8 = np.uint64(qm) * _EIGHT
+                                near = abs(texel[m8 + _THREE] - zp) <= slope * fb[_ROW_R + j]
+                                if texel[m8 + _FIVE] == key and near:
+                                    q = qm
                     else:
                         # Hidden surface: on the image, not in front of the centre.
                         hid = inside and not (zp - zq > np.float32(0.1) * zp)
@@ -647,6 +719,7 @@ def _pixel_sums(
                     b_mir[j] = mirrored
                     b_ok[j] = ok
                     b_touch[j] = touching
+                    b_keep[j] = keep
                     b_q[j] = q
                     fb[_ROW_ZQ + j] = zq
                     if use_plane:
@@ -769,8 +842,11 @@ def _pixel_sums(
                         l0 = texel[q8]
                         l1 = texel[q8 + _ONE]
                         l2 = texel[q8 + _TWO]
-                        if b_touch[j]:  # unlit
-                            l0 = l1 = l2 = zero
+                        if b_touch[j]:  # its share of its mirror image's or the centre's
+                            share = b_keep[j]
+                            l0 = share * l0
+                            l1 = share * l1
+                            l2 = share * l2
                         if disk:
                             gq = fb[_ROW_G + j]
                             d0 = (l0 * gq - b0) * b_w[0, j]

@@ -11,6 +11,7 @@ from cvsss.core.camera import Camera
 from cvsss.core.geometry import geometry_of
 from cvsss.core.mc.estimator import estimate_distant
 from cvsss.core.mc.samples import _pdf, _pdf_at, active_pixels
+from cvsss.core.params import CONTACT_LOSS
 from cvsss.core.profiles import BurleyProfile
 from cvsss.core.profiles.factory import ProfileChoice, frame_profile
 from cvsss.core.synthetic import flat_plane, scene_frame
@@ -227,16 +228,17 @@ def test_no_light_passes_from_one_object_to_another(kernel):
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
-def test_a_touching_object_covers_unlit_surface(kernel):
-    """SSSParams.contact: a sample on another object at the height of the centre's tangent
-    plane (here the same plane) counts as the centre's surface running on under that
-    object, unlit: object 1 gets what one surface whose right half is unlit gives
-    (the same samples; planar weights exactly, plane-point weights to float rounding)."""
+def test_a_touching_object_on_the_plane_keeps_a_share_of_the_light(kernel):
+    """SSSParams.contact: a sample on another object in the centre's own plane (which faces
+    the camera as squarely) stands for the centre's surface ending on that object, at
+    height 0 of it: it keeps 1 − CONTACT_LOSS of the centre's light. Object 1 then gets
+    what one surface whose right half is lit at that share gives (the same samples;
+    planar weights exactly, plane-point weights to float rounding)."""
     frame = two_objects()
     geom, est, touched = shade(frame, 64, contact=0.5, **KERNELS[kernel])
-    unlit = frame.lighting.copy()
-    unlit[:, 32:] = 0.0
-    dark = dataclasses.replace(frame, objects=None, lighting=unlit)
+    kept = frame.lighting.copy()
+    kept[:, 32:] = np.float32(1.0) - np.float32(CONTACT_LOSS)
+    dark = dataclasses.replace(frame, objects=None, lighting=kept)
     _, ref, expected = shade(dark, 64, **KERNELS[kernel])
     left = geom.x < 32
     if kernel == "planar":
@@ -312,23 +314,31 @@ def test_an_object_standing_on_a_surface_hides_it_unlit(kernel, backend):
 
 @pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("kernel", ["surface", "cycles"])
-def test_a_surface_standing_on_a_slanted_one_is_unlit_only_where_they_touch(kernel, backend):
+def test_a_surface_ending_on_a_slanted_one_loses_light_at_its_foot(kernel, backend):
     """The front face of a slab (rows 0-23, object 1, facing the camera) stands on a floor
     seen at 60° (object 2) in front of it. The floor faces the camera less squarely than
-    the face, so a sample of the face that lands on it counts unlit only where the face's
-    pixel lies within contact·r of the floor's plane: the face's row on the floor comes
-    out darker than with no contact rule, and rows more than contact·(the profile's
-    reach) above it exactly as without one."""
+    the face, so the face ends on it: a sample of the face's row on the floor (0.5 cm
+    above it, within CONTACT_FOOT·contact·d) that lands on the floor keeps 1 −
+    CONTACT_LOSS of the face's light, and the row gets what the face continued below the
+    floor at that share of its light gives (the same samples, at the same points of the
+    face's plane: to float rounding). Rows more than contact·d (2.8 cm) above the floor
+    come out exactly as without the rule."""
     contact = SSSParams().contact
     opts = dict(KERNELS[kernel], backend=backend, slope=2.5)
     frame = _crease(lambda r: _table(23.5) + 0.0 * r, _table, top_object=1, bottom_object=2)
     geom, _, got = shade(frame, 64, contact=contact, **opts)
     _, _, apart = shade(frame, 64, contact=0.0, **opts)
-    face = geom.y < 24
-    assert (got[face & (geom.y == 23), 0] < apart[face & (geom.y == 23), 0]).all()
-    # The red profile reaches 16·d = 32 cm at most: beyond contact·32 cm ≈ 5 cm no sample
-    # of the face counts unlit.
-    far = face & (geom.y < 23 - int(np.ceil(contact * 32 / np.sin(np.radians(60.0)))))
+    continued = _crease(lambda r: _table(23.5) + 0.0 * r, lambda r: _table(23.5) + 0.0 * r,
+                        top_object=1, bottom_object=1)  # fmt: skip
+    continued.objects = None
+    continued.lighting[24:] = np.float32(1.0) - np.float32(CONTACT_LOSS)
+    _, _, expected = shade(continued, 64, **opts)
+    foot = geom.y == 23
+    np.testing.assert_allclose(got[foot], expected[foot], rtol=2e-5, atol=1e-7)
+    assert (got[foot, 0] < apart[foot, 0]).all()
+    # d = 2 cm in red: beyond 1.4·2 cm = 2.8 cm (rows 0-20 of 1 cm) no sample loses light.
+    far = geom.y < 23.5 - contact * 2.0
+    assert far.any()
     np.testing.assert_array_equal(got[far], apart[far])
 
 
