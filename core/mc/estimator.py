@@ -75,26 +75,38 @@ Cycles' disk probes hit the entry point's own object only: light never
 scatters from one object into another, even of the same material (a marble
 block on a marble table top). With the frame's Object Index pass
 (``geom.objects``) a sample on another object is rejected like one on another
-material. One that lands on another object marks where the centre's surface
-runs on hidden under an object that rests on it — the table top beneath the
-block, a slab's front face where it stands on the floor — when the other
-object continues the centre's surface in depth (the depth test a sample of the
-centre's own object passes), lies on the visible side of the centre's tangent
-plane (``n_p·(x_q − x_p) ≥ 0``), and either the centre lies within
-``contact·r`` of the other object's tangent plane at the landing point
-(``|n_q·(x_q − x_p)|``: the two touch near the centre) or the other object
-faces the camera :data:`~core.params.CONTACT_FACING` times more squarely than
-the centre (``|n·v|``: a block seen head-on standing on a top seen at a slant,
-which it hides). So a face standing on a floor seen at a slant darkens only
-near the floor, as in Cycles' renders, while a block standing on a top seen at
-a slant hides all of the top behind it. That surface is unlit: the sample
-counts light 0 at its point of the tangent plane (the plane's depth along the
-sample's ray, the centre's area element scaled by the squared depth ratio,
-G = 1), weighed as an accepted sample. Without normals (planar weights) both planes face the camera and the
-test is the depth difference within ``contact·r``. On a plane, this is exactly
-the estimator over one surface whose part under the other object is dark
-(tests/core/mc/test_estimator.py). Without the pass every pixel counts as one
-object and nothing changes.
+material. One that lands on another object stands for the centre's surface
+where it meets that object when the other object continues the centre's
+surface in depth (the depth test a sample of the centre's own object passes)
+and lies on the visible side of the centre's tangent plane
+(``n_p·(x_q − x_p) ≥ 0``). Two cases:
+
+- the other object faces the camera :data:`~core.params.CONTACT_FACING` times
+  more squarely than the centre (``|n·v|``: a block seen head-on standing on a
+  table top seen at a slant): it hides the centre's surface, which runs on
+  under it unlit;
+- otherwise the centre's surface ends on it (a slab's front face standing on
+  a floor seen at a slant). Where the centre lies at a height
+  ``h = |n_q·(x_q' − x_p)|`` of the other object's tangent plane (through the
+  landing pixel's own point x_q', its centre at its depth) below
+  ``reach = contact·d`` (d the slot's scattering length,
+  :meth:`~core.profiles.base.Profile.contact_scale`), the sample keeps
+  ``1 − CONTACT_LOSS·min((reach − h) / (reach − CONTACT_FOOT·reach), 1)`` of
+  its light (:data:`~core.params.CONTACT_LOSS`, :data:`~core.params.CONTACT_FOOT`),
+  all of it where its point on the centre's tangent plane lies above the other
+  object's plane (the landing pixel holds part of the centre's surface there).
+
+Either way the sample counts at its point of the tangent plane (the plane's
+depth along the sample's ray, the centre's area element scaled by the squared
+depth ratio, G = 1), weighed as an accepted sample, with its share of the light
+of its mirror image (where the slot reads mirror images and the opposite pixel
+is on the centre's surface, *Hidden surface*) or else of the centre: none
+where hidden. Without normals (planar weights) both planes face the camera and
+h is the depth difference. On a plane, the hidden case is exactly the
+estimator over one surface whose part under the other object is dark, and the
+ending case at the foot the one over a surface continued at that share of the
+light (tests/core/mc/test_estimator.py). Without the pass every pixel counts
+as one object and nothing changes.
 
 Hidden surface
 --------------
@@ -236,11 +248,11 @@ def estimate_distant(
     hidden_light : float in [0, 1], share of the centre's direct light (``geom.direct``)
         a hidden-surface sample counts with where its mirror image does not apply
         (module doc, *Hidden surface*); 1: the centre's light
-    contact : float >= 0, with ``geom.objects``: a sample on another object that
-        continues the centre's surface, where the centre lies within ``contact·r`` of
-        that object's tangent plane or that object hides the centre's surface, counts,
-        unlit, as the centre's surface continuing under it (module doc, *Objects*); 0:
-        no such samples
+    contact : float >= 0, multiple of the slot's d, with ``geom.objects``: a sample on
+        another object that continues the centre's surface counts as the centre's
+        surface meeting it: unlit where that object hides the surface, keeping a share
+        of its light where the surface ends on it within ``contact·d`` (module doc,
+        *Objects*); 0: no such samples
     hidden_mirror : bool, a hidden-surface sample reads the pixel opposite it through
         the centre where that pixel is on the centre's surface (module doc, *Hidden
         surface*); before ``hidden_light``; Christensen-Burley slots only

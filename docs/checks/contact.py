@@ -10,7 +10,9 @@ ground-truth frames with the model's own noise out of the way (``fixed``,
 - ``no objects``: the Object Index pass dropped (one object per material, as
   before the pass existed);
 - ``contact 0``: objects kept apart, no contact rule;
-- ``contact 0.1`` / ``0.2`` (default) / ``0.25`` / ``0.5`` / ``1``.
+- ``contact 0.1`` / ``0.2`` / ``0.25`` / ``0.5`` / ``1`` (the rule of 89f183a counted
+  them in sample radii, 0.2 its default; since 0eab61e Contact Height counts in d,
+  default 1.4).
 
 It prints, per scene, PSNR against Cycles' ground truth on SSS pixels (mean
 over the ground-truth frames, and its change against ``no objects``) and the

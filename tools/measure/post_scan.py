@@ -25,7 +25,9 @@ repository root::
     .venv/bin/python tools/measure/post_scan.py out/flash64/passes out/cmp \\
         --samples 64 --object "flash Marble Top" --option contact --values 0.2,0.3
 
-The method is ``--method`` (default ``as_ccv``); a temporal method's frames
+EEVEE passes (``cvsss render --engine EEVEE``) are scored against the run's EEVEE
+renders with ``--setting eevee_<samples>``. The method is ``--method`` (default
+``as_ccv``); a temporal method's frames
 after the first differ from Apply on Render's, which warms up before them.
 ``--backend numpy`` posts with the NumPy backend, where a rule not yet an
 option can be tried in a scratch edit of ``core/mc/samples.py`` before its
@@ -44,7 +46,14 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from cvsss.core.eval.users_frame import display, frame_exposure, psnr_display, subsurface_mask
+from cvsss.core.eval.users_frame import (
+    display,
+    effect_db,
+    frame_exposure,
+    lighting_scale,
+    psnr_display,
+    subsurface_mask,
+)
 from cvsss.core.io.exr import read_channels, read_pass, read_rgb
 
 
@@ -83,7 +92,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("passes", type=Path, help="the pass files (####.exr, ####.json)")
     parser.add_argument("compare", type=Path, help="the cvsss compare --out folder")
-    parser.add_argument("--samples", type=int, required=True, help="the plain render's spp")
+    parser.add_argument("--samples", type=int, help="the plain render's spp (Cycles)")
+    parser.add_argument(
+        "--setting", help="the compare's renders/<setting> (default cycles_<samples>_denoised)"
+    )
     parser.add_argument("--option", required=True, help="a cvsss post option, without --")
     parser.add_argument("--values", required=True, help="comma-separated values")
     parser.add_argument("--object", required=True, help="the object whose borders to score")
@@ -97,7 +109,9 @@ def main() -> int:
     frames = sorted(int(p.stem) for p in args.passes.glob("[0-9]*.exr"))
     if not frames:
         raise SystemExit(f"error: no pass files in {args.passes}")
-    renders = args.compare / "renders" / f"cycles_{args.samples}_denoised"
+    if args.setting is None and args.samples is None:
+        raise SystemExit("error: give --samples or --setting")
+    renders = args.compare / "renders" / (args.setting or f"cycles_{args.samples}_denoised")
     truths = {}
     for f in frames:
         truth = read_rgb(args.compare / "ground_truth" / args.variant / f"{f:04d}.exr")
@@ -105,29 +119,33 @@ def main() -> int:
         k = frame_exposure(truth)
         mask = subsurface_mask(truth, truth_off, k)
         plain = read_rgb(renders / f"{args.variant}_plain_{f:04d}.exr")
-        truths[f] = truth, k, mask, plain, regions(args.compare, f, mask, args.object, args.ring)
+        off = read_rgb(renders / f"off_{f:04d}.exr")
+        parts = regions(args.compare, f, mask, args.object, args.ring)
+        truths[f] = truth, k, mask, plain, parts, truth_off, off
 
-    def score(images: dict[int, np.ndarray]) -> tuple[float, float, list[float]]:
-        whole, sss, sse = [], [], np.zeros(3)
+    def score(images: dict[int, np.ndarray]) -> tuple[float, float, float, list[float]]:
+        whole, sss, effect, sse = [], [], [], np.zeros(3)
         for f, image in images.items():
-            truth, k, mask, _, parts = truths[f]
+            truth, k, mask, _, parts, truth_off, off = truths[f]
             whole.append(psnr_display(image, truth, k))
             sss.append(psnr_display(image, truth, k, mask))
+            s = lighting_scale(truth_off, off, mask)
+            effect.append(effect_db(image, off, truth, truth_off, mask, k, s))
             if parts is not None:
                 error = ((display(image, k) - display(truth, k))[..., :3] ** 2).mean(axis=-1)
                 sse += [error[part].sum() for part in parts]
-        return float(np.mean(whole)), float(np.mean(sss)), list(sse)
+        return float(np.mean(whole)), float(np.mean(sss)), float(np.mean(effect)), list(sse)
 
     plain = score({f: t[3] for f, t in truths.items()})
-    head = f"{'':>14s} {'whole dB':>9s} {'sss dB':>7s} {'gain':>13s}"
+    head = f"{'':>14s} {'whole dB':>9s} {'sss dB':>7s} {'gain':>13s} {'effect dB':>10s}"
     print(f"{args.passes}, frames {frames[0]}-{frames[-1]}; {args.option} scanned")
     print(head + f"   SSE {args.object} <= {args.ring} px / rest / other objects")
 
     def row(label, figures):
-        whole, sss, sse = figures
+        whole, sss, effect, sse = figures
         gain = f"{whole - plain[0]:+.2f} / {sss - plain[1]:+.2f}"
         regions_ = " / ".join(f"{v:.2f}" for v in sse) if truths[frames[0]][4] is not None else "—"
-        print(f"{label:>14s} {whole:9.2f} {sss:7.2f} {gain:>13s}   {regions_}")
+        print(f"{label:>14s} {whole:9.2f} {sss:7.2f} {gain:>13s} {effect:10.2f}   {regions_}")
 
     row("plain", plain)
     with tempfile.TemporaryDirectory() as folder:
