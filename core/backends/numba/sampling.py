@@ -108,6 +108,21 @@ def _normal_z(mx, my, signed):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def _opposite(px, py, fx, fy, ox, oy, w, h, texel, key, zp, tol):
+    """The crop pixel opposite the landing pixel (fx, fy) through the centre (px, py),
+    where it is on the centre's surface (its key, within ``tol`` of the centre's depth
+    zp; no plane test); -1 elsewhere (as :func:`core.mc.samples._mirrored`)."""
+    mix = np.int64(np.int32(np.float32(2.0) * px - fx)) - ox
+    miy = np.int64(np.int32(np.float32(2.0) * py - fy)) - oy
+    if (mix >= 0) & (mix < w) & (miy >= 0) & (miy < h):
+        qm = miy * w + mix
+        m8 = np.uint64(qm) * _EIGHT
+        if texel[m8 + _FIVE] == key and abs(texel[m8 + _THREE] - zp) <= tol:
+            return qm
+    return np.int64(-1)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _kept(height, reach):
     """The share of its light a sample keeps where the centre's surface ends on another
     object at ``height`` of it, for ``height < reach`` (float32; as
@@ -683,34 +698,25 @@ def _pixel_sums(
                                 area_t = area_p * ratio * ratio
                         q = centre
                         if keep > zero and mirror[mat]:
-                            mxf = np.float32(2.0) * px - fb[_ROW_FX + j]
-                            myf = np.float32(2.0) * py - fb[_ROW_FY + j]
-                            mix = np.int64(np.int32(mxf)) - ox
-                            miy = np.int64(np.int32(myf)) - oy
-                            if (mix >= 0) & (mix < w) & (miy >= 0) & (miy < h):
-                                qm = miy * w + mix
-                                m8 = np.uint64(qm) * _EIGHT
-                                near = abs(texel[m8 + _THREE] - zp) <= slope * fb[_ROW_R + j]
-                                if texel[m8 + _FIVE] == key and near:
-                                    q = qm
+                            qm = _opposite(
+                                px, py, fb[_ROW_FX + j], fb[_ROW_FY + j], ox, oy, w, h, texel,
+                                key, zp, slope * fb[_ROW_R + j],
+                            )  # fmt: skip
+                            if qm >= 0:
+                                q = qm
                     else:
                         # Hidden surface: on the image, not in front of the centre.
                         hid = inside and not (zp - zq > np.float32(0.1) * zp)
                         q = centre
                         if mirror[mat] and hid:
                             # The pixel opposite through the centre, if on its surface.
-                            mxf = np.float32(2.0) * px - fb[_ROW_FX + j]
-                            myf = np.float32(2.0) * py - fb[_ROW_FY + j]
-                            mix = np.int64(np.int32(mxf)) - ox
-                            miy = np.int64(np.int32(myf)) - oy
-                            if (mix >= 0) & (mix < w) & (miy >= 0) & (miy < h):
-                                qm = miy * w + mix
-                                m8 = np.uint64(qm) * _EIGHT
-                                # Same key, and near the centre's depth (no plane test).
-                                near = abs(texel[m8 + _THREE] - zp) <= slope * fb[_ROW_R + j]
-                                if texel[m8 + _FIVE] == key and near:
-                                    mirrored = True
-                                    q = qm
+                            qm = _opposite(
+                                px, py, fb[_ROW_FX + j], fb[_ROW_FY + j], ox, oy, w, h, texel,
+                                key, zp, slope * fb[_ROW_R + j],
+                            )  # fmt: skip
+                            if qm >= 0:
+                                mirrored = True
+                                q = qm
                         fill = mirrored or (use_fill and hid)
                         zq = zp
                         if core:
