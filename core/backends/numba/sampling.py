@@ -108,6 +108,15 @@ def _normal_z(mx, my, signed):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def _offset(sx, sy, z, px, py, zp, ortho, cx, cy, unit_x, unit_y):
+    """Camera-space x, y offset (float32, scene units) from the centre pixel (px, py) at
+    depth zp to the screen point (sx, sy) at depth z (as :func:`core.mc.samples._offset`)."""
+    if ortho:
+        return (sx - px) * unit_x, (sy - py) * unit_y
+    return ((sx - cx) * z - (px - cx) * zp) * unit_x, ((sy - cy) * z - (py - cy) * zp) * unit_y
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _opposite(px, py, fx, fy, ox, oy, w, h, texel, key, zp, tol):
     """The crop pixel opposite the landing pixel (fx, fy) through the centre (px, py),
     where it is on the centre's surface (its key, within ``tol`` of the centre's depth
@@ -629,12 +638,8 @@ def _pixel_sums(
                         else:
                             qx = fb[_ROW_QX + j]
                             qy = fb[_ROW_QY + j]
-                            if mode == ORTHO:
-                                dx = (qx - px) * unit_x
-                                dy = (qy - py) * unit_y
-                            else:
-                                dx = ((qx - cx) * zq - (px - cx) * zp) * unit_x
-                                dy = ((qy - cy) * zq - (py - cy) * zp) * unit_y
+                            ortho = mode == ORTHO
+                            dx, dy = _offset(qx, qy, zq, px, py, zp, ortho, cx, cy, unit_x, unit_y)
                             q8 = np.uint64(q) * _EIGHT
                             mx = texel[q8 + _SIX]
                             my = texel[q8 + _SEVEN]
@@ -654,12 +659,7 @@ def _pixel_sums(
                             # point (its centre at its depth).
                             fx = fb[_ROW_FX + j]
                             fy = fb[_ROW_FY + j]
-                            if mode == ORTHO:
-                                lx = (fx - px) * unit_x
-                                ly = (fy - py) * unit_y
-                            else:
-                                lx = ((fx - cx) * zq - (px - cx) * zp) * unit_x
-                                ly = ((fy - cy) * zq - (py - cy) * zp) * unit_y
+                            lx, ly = _offset(fx, fy, zq, px, py, zp, ortho, cx, cy, unit_x, unit_y)
                             height = abs(lx * mx + ly * my + dz * mz)
                             ends = follows & (not hides) & (height < reach)
                             touching = hides | ends
@@ -668,14 +668,13 @@ def _pixel_sums(
                                 # Its point on the centre's tangent plane against that plane:
                                 # above it, the landing pixel holds the centre's surface there.
                                 wq = pa * qx + pb * qy + pc
-                                if mode == ORTHO:
+                                if ortho:
                                     zh = wq if np.isfinite(wq) else zp
-                                    hx = (qx - px) * unit_x
-                                    hy = (qy - py) * unit_y
                                 else:
                                     zh = one / wq if wq > zero else zp
-                                    hx = ((qx - cx) * zh - (px - cx) * zp) * unit_x
-                                    hy = ((qy - cy) * zh - (py - cy) * zp) * unit_y
+                                hx, hy = _offset(
+                                    qx, qy, zh, px, py, zp, ortho, cx, cy, unit_x, unit_y
+                                )
                                 side = mx * (hx - lx) + my * (hy - ly) + mz * ((zh - zp) - dz)
                                 if side > _ABOVE * fb[_ROW_R + j]:
                                     keep = one
