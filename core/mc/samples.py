@@ -607,8 +607,8 @@ def _touching(
     the other object faces the camera :data:`core.params.CONTACT_FACING` times more
     squarely than the centre, it hides the surface, which runs on under it unlit (share
     0). Otherwise the surface ends on it: where the centre lies within ``reach``
-    (contact·d) of the other object's tangent plane at the landing point, at a height
-    h, the sample keeps ``1 − CONTACT_LOSS·min((reach − h) / (reach − CONTACT_FOOT·reach),
+    (contact·d) of the other object's tangent plane through the landing pixel's own
+    point (its centre at its depth), at a height h, the sample keeps ``1 − CONTACT_LOSS·min((reach − h) / (reach − CONTACT_FOOT·reach),
     1)`` of its light, all of it where its point on the centre's tangent plane lies above
     the other object's plane (the landing pixel only holds part of the centre's surface
     there, by more than ``_ABOVE·r``). Without normals (planar weights) both planes face
