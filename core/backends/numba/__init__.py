@@ -12,7 +12,8 @@ surface), :mod:`.region` (the Burley distant region), :mod:`.adaptive` (SPVG),
 :mod:`.history` (the history step, reprojection, reads and writes), :mod:`.image`
 (the composite and float maps), :mod:`.separable` (the separable passes),
 :mod:`.temporal` (the temporal reuse); :mod:`.common` holds their shared inline
-helpers and :mod:`.compile` compiles them all.
+helpers, :mod:`.per_sample` those the sampling pass inlines per sample, and
+:mod:`.compile` compiles them all.
 
 Compiled code is cached on disk (numba's ``cache=True``; :mod:`core.backends.cache`
 chooses where). An extension built by ``make extension`` ships them compiled
