@@ -61,16 +61,22 @@ def object_index(blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
     return np.rint(index).astype(int), names
 
 
-def frame_objects(compared: Path, blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
-    """The Object Index and object names of one frame of a ``cvsss compare`` run: the
-    run's own (``ground_truth/objects/####.exr`` and ``.json``), else rendered from
-    ``blend`` (:func:`object_index`)."""
+def stored_objects(compared: Path, frame: int) -> tuple[np.ndarray, dict[int, str]] | None:
+    """The Object Index and object names a ``cvsss compare`` run kept of one frame
+    (``ground_truth/objects/####.exr`` and ``.json``); None where it kept none."""
     path = compared / "ground_truth" / "objects" / f"{frame:04d}.exr"
     if not path.exists():
-        return object_index(blend, frame)
+        return None
     names = json.loads(path.with_suffix(".json").read_text())
     index = np.rint(read_pass(path, "Object Index")).astype(int)
     return index, {int(number): name for number, name in names.items()}
+
+
+def frame_objects(compared: Path, blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:
+    """The Object Index and object names of one frame of a ``cvsss compare`` run: the
+    run's own (:func:`stored_objects`), else rendered from ``blend``
+    (:func:`object_index`)."""
+    return stored_objects(compared, frame) or object_index(blend, frame)
 
 
 def rings(index: np.ndarray, target: int, names: dict[int, str]) -> dict[str, np.ndarray]:

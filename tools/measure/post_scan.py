@@ -37,13 +37,13 @@ twin in the compiled pass is written (the backends agree to float rounding).
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from contact_bands import stored_objects
 from scipy import ndimage
 
 from cvsss.core.eval.users_frame import (
@@ -54,13 +54,7 @@ from cvsss.core.eval.users_frame import (
     psnr_display,
     subsurface_mask,
 )
-from cvsss.core.io.exr import read_channels, read_pass, read_rgb
-
-
-def finished(path: Path) -> np.ndarray:
-    """(H, W, 3) float32: a ``cvsss post`` result's finished frame (its Composite)."""
-    channels = read_channels(path)
-    return np.stack([channels[f"Composite.{c}"] for c in "RGB"], axis=-1)
+from cvsss.core.io.exr import read_result, read_rgb
 
 
 def post(passes: Path, out: Path, method: str, backend: str, option: str, value: str) -> Path:
@@ -75,14 +69,13 @@ def post(passes: Path, out: Path, method: str, backend: str, option: str, value:
 def regions(compare: Path, frame: int, mask: np.ndarray, target: str, ring: int):
     """The subsurface pixels of ``target`` within ``ring`` px of another object, the rest
     of them, and those of every other object; None where the run kept no Object Index."""
-    path = compare / "ground_truth" / "objects" / f"{frame:04d}.exr"
-    if not path.exists():
+    stored = stored_objects(compare, frame)
+    if stored is None:
         return None
-    names = json.loads(path.with_suffix(".json").read_text())
-    number = next((int(n) for n, name in names.items() if name == target), None)
+    index, names = stored
+    number = next((n for n, name in names.items() if name == target), None)
     if number is None:
         raise SystemExit(f"error: {compare} shows no object {target!r}")
-    index = np.rint(read_pass(path, "Object Index")).astype(int)
     mine = index == number
     near = ndimage.binary_dilation(~mine & (index != 0), iterations=ring)
     return mine & mask & near, mine & mask & ~near, mask & ~mine
@@ -152,7 +145,10 @@ def main() -> int:
         for value in args.values.split(","):
             out = Path(folder) / value
             result = post(args.passes, out, args.method, args.backend, args.option, value)
-            row(f"{value}", score({f: finished(result / f"{f:04d}.exr") for f in frames}))
+            row(
+                f"{value}",
+                score({f: read_result(result / f"{f:04d}.exr")["Composite"] for f in frames}),
+            )
     return 0
 
 

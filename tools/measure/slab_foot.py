@@ -5,7 +5,7 @@ towards the floor in Cycles' ground truth, and Apply on Render's contact rule
 (docs/explanation/design.md §5.6) models that darkening. This script renders one
 frame of a file of ``users_frame_scenes.py`` with Cycles (``--samples`` per pixel,
 no denoising, seed 0) with subsurface on and with it off (every Principled BSDF's
-Subsurface Weight 0), for the slab as built and moved up or down by ``--shifts``
+Subsurface Weight held at 0, ``materials.SSSDisabled``), for the slab as built and moved up or down by ``--shifts``
 (metres), and prints per row of the slab's front face, counted up from the
 floor, the mean of the frame with subsurface over the frame without it (linear,
 the mean over the columns where the slab stands on the floor and the channels),
@@ -26,30 +26,19 @@ from pathlib import Path
 
 import bpy
 import numpy as np
+from denoise_context import exr_output
 
 from cvsss.core.io.exr import read_pass, read_rgb
+from cvsss.sss_addon.blender.materials import SSSDisabled
 
 FLOOR = "Plane"
 
 
 def render(scene, path: Path, index: bool = False) -> None:
-    settings = scene.render.image_settings
-    settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
+    """Render the frame to a multilayer EXR at ``path`` (with the Object Index pass)."""
     scene.view_layers[0].use_pass_object_index = index
-    scene.render.filepath = str(path)
+    exr_output(scene, path)
     bpy.ops.render.render(write_still=True)
-
-
-def subsurface(weight: float | None, saved: dict) -> None:
-    """Set every Principled BSDF's Subsurface Weight (None: back to ``saved``)."""
-    for material in bpy.data.materials:
-        for node in material.node_tree.nodes if material.node_tree else ():
-            if node.type == "BSDF_PRINCIPLED":
-                socket = node.inputs["Subsurface Weight"]
-                saved.setdefault(node.as_pointer(), socket.default_value)
-                socket.default_value = saved[node.as_pointer()] if weight is None else weight
 
 
 def face_rows(index: np.ndarray, slab: int, floor: int, rows: int) -> list[np.ndarray]:
@@ -94,7 +83,6 @@ def main() -> int:
     cycles.use_animated_seed = False
     scene.render.use_compositing = False
     base = slab.location.z
-    saved: dict = {}
     print(f"{args.blend} frame {args.frame}, {args.samples} spp: with / without subsurface")
     print("row up from the floor: " + " ".join(f"{r:6d}" for r in range(args.rows)))
     with tempfile.TemporaryDirectory() as folder:
@@ -102,9 +90,8 @@ def main() -> int:
             slab.location.z = base + shift
             on, off = Path(folder) / "on.exr", Path(folder) / "off.exr"
             render(scene, on, index=True)
-            subsurface(0.0, saved)
-            render(scene, off)
-            subsurface(None, saved)
+            with SSSDisabled(bpy.data.materials):
+                render(scene, off)
             index = np.rint(read_pass(on, "Object Index")).astype(int)
             lit, dark = read_rgb(on)[..., :3].mean(-1), read_rgb(off)[..., :3].mean(-1)
             ratios = []
