@@ -291,6 +291,7 @@ def object_errors(
     ground_truth_off: np.ndarray,
     objects: np.ndarray,
     frame_off: np.ndarray | None = None,
+    figures: FrameFigures | None = None,
 ) -> dict[int, dict]:
     """Each object's share of a frame's error on the subsurface pixels: which objects a
     figure's gain or loss comes from.
@@ -299,6 +300,9 @@ def object_errors(
     ----------
     frame, ground_truth, ground_truth_off, frame_off : as :func:`frame_figures`
     objects : (H, W) int, the object each pixel shows (an Object Index pass; 0: none)
+    figures : FrameFigures, optional
+        :func:`frame_figures` of the same images: its exposure and lighting scale are
+        used instead of being computed again.
 
     Returns
     -------
@@ -309,7 +313,7 @@ def object_errors(
     PSNR on its subsurface pixels is ``−10·log10(sse / pixels)``. Objects without
     subsurface pixels are left out.
     """
-    k = frame_exposure(ground_truth)
+    k = figures.exposure if figures is not None else frame_exposure(ground_truth)
     mask = subsurface_mask(ground_truth, ground_truth_off, k)
     objects = np.asarray(objects)
     if objects.shape != mask.shape:
@@ -323,7 +327,11 @@ def object_errors(
     display_sse = np.bincount(numbers, np.mean(shown**2, axis=-1))
     effect_sse = np.full(display_sse.shape, np.nan)
     if frame_off is not None:
-        s = lighting_scale(ground_truth_off, frame_off, mask)
+        s = (
+            figures.lighting_scale
+            if figures is not None
+            else lighting_scale(ground_truth_off, frame_off, mask)
+        )
         if np.isfinite(s):
             change = _effect_difference(
                 frame, frame_off, ground_truth, ground_truth_off, mask, k, s

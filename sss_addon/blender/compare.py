@@ -211,7 +211,8 @@ class _Comparison:
             frame_off = read_rgb(frame_file(off_prefix, f))
             figures[f] = frame_figures(frame, truth, truth_off, frame_off)
             index, names = self.objects[f]
-            for number, sums in object_errors(frame, truth, truth_off, index, frame_off).items():
+            errors = object_errors(frame, truth, truth_off, index, frame_off, figures[f])
+            for number, sums in errors.items():
                 total = objects.setdefault(names.get(number, ""), dict.fromkeys(sums, 0))
                 for key, value in sums.items():
                     total[key] += value

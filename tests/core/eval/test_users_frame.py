@@ -174,6 +174,9 @@ def test_object_errors_split_the_subsurface_pixels_by_hand():
     effect = object_errors(frame2, gt, gt_off, objects, frame_off)
     assert effect[3]["effect_sse"] == pytest.approx(8 * 0.01**2, rel=1e-6)
     assert effect[7]["effect_sse"] == pytest.approx(0.0, abs=1e-20)
+    # The frame's own figures, passed in, give the same sums (their exposure and scale).
+    figures = frame_figures(frame2, gt, gt_off, frame_off)
+    assert object_errors(frame2, gt, gt_off, objects, frame_off, figures) == effect
     # An object's PSNR from its sums: object 3 alone, as psnr_display on its pixels.
     k = frame_exposure(gt)
     alone = psnr_display(frame, gt, k, objects == 3)
