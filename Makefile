@@ -41,7 +41,7 @@ test-core: $(STAMP)
 test-bpy: $(STAMP)
 	$(BIN)/python -m pytest -q -m bpy
 
-# The main job (about 50 min on 2 cores from a clean clone, ground truth included): builds the demo_blend scenes, renders their passes with
+# The main job (46-48 min on 2 quiet cores from a clean clone, ground truth included; 1 h 45 min on a slow day): builds the demo_blend scenes, renders their passes with
 # Cycles, post-processes every method and writes $(OUT)/demo/report.md. Scale with
 # RES=640x360 FRAMES=240 SCENES=flash,boids REF_EVERY=1 GT_EVERY=40 (SCENES empty: all three;
 # GT_EVERY=0: no Cycles ground truth; COMPARE_FRAMES=0: no "what you had / what you get" table;
