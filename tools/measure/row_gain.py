@@ -5,7 +5,9 @@ rule), the ratio of the summed luminance with subsurface to without: Cycles'
 (its ground truth with and without subsurface, from a ``cvsss compare`` run) and
 the post's (a method's finished frame, ``Composite``, over the ``none`` method's
 on the same passes), then the post's frame over the ground truth. Linear light,
-means over ``--frames``. It tells whether an object's bias along a row comes
+means over ``--frames``; last the post's squared display error summed over the
+object's subsurface pixels and the frames (the figures' exposure and display rule,
+the mean over the channels), to compare two runs of the post. It tells whether an object's bias along a row comes
 from what the post adds (the ratios differ) or from the passes (the frame without
 subsurface differs). From the repository root, after ``make demo``::
 
@@ -29,7 +31,7 @@ import numpy as np
 from contact_bands import stored_objects
 
 from cvsss.core.color import luminance
-from cvsss.core.eval.users_frame import frame_exposure, subsurface_mask
+from cvsss.core.eval.users_frame import display, frame_exposure, subsurface_mask
 from cvsss.core.io.exr import read_channels, read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
@@ -51,12 +53,14 @@ def main() -> int:
     args = parser.parse_args()
     first, last = parse_frames(args.rows)
     start, end = parse_frames(args.frames)
+    squared = 0.0
     ratios: dict[str, dict[int, list[float]]] = {k: {} for k in ("Cycles", "post", "post / Cycles")}
     for frame in range(start, end + 1):
         name = f"{frame:04d}.exr"
         truth = read_rgb(args.compared / "ground_truth" / "material" / name)
         truth_off = read_rgb(args.compared / "ground_truth" / "off" / name)
-        mask = subsurface_mask(truth, truth_off, frame_exposure(truth))
+        k = frame_exposure(truth)
+        mask = subsurface_mask(truth, truth_off, k)
         stored = stored_objects(args.compared, frame)
         if stored is None:
             raise SystemExit(f"error: {args.compared} kept no Object Index of frame {frame}")
@@ -65,10 +69,13 @@ def main() -> int:
         if number is None:
             raise SystemExit(f"error: {args.compared} shows no object {args.object!r}")
         mine = (index == number) & mask
+        post = composite(args.post / name)
+        error = np.mean((display(post, k) - display(truth, k)) ** 2, axis=-1)
+        squared += float(error[mine].sum())
         y = {
             "truth": luminance(truth),
             "truth_off": luminance(truth_off),
-            "post": luminance(composite(args.post / name)),
+            "post": luminance(post),
             "none": luminance(composite(args.none / name)),
         }
         for row in range(first, last + 1):
@@ -86,6 +93,7 @@ def main() -> int:
     for key, by_row in ratios.items():
         cells = " ".join(f"{row}: {np.mean(v):.3f}" for row, v in by_row.items())
         print(f"  {key:14s} {cells}")
+    print(f"the post's squared display error, summed over those pixels: {squared:.2f}")
     return 0
 
 
