@@ -25,12 +25,13 @@ import argparse
 import json
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import bpy
 import numpy as np
 from scipy import ndimage
 
-from cvsss.core.eval.users_frame import display, frame_exposure
+from cvsss.core.eval.users_frame import display, frame_exposure, subsurface_mask
 from cvsss.core.io.exr import read_pass, read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
@@ -70,6 +71,29 @@ def stored_objects(compared: Path, frame: int) -> tuple[np.ndarray, dict[int, st
     names = json.loads(path.with_suffix(".json").read_text())
     index = np.rint(read_pass(path, "Object Index")).astype(int)
     return index, {int(number): name for number, name in names.items()}
+
+
+def object_truth(compared: Path, frame: int, name: str) -> SimpleNamespace:
+    """One frame of a ``cvsss compare`` run, seen from one object: the ground truth with
+    and without subsurface (``truth``, ``truth_off``, (H, W, 3) linear), its exposure
+    ``k``, the subsurface pixels ``mask`` and of them the object's, ``mine`` ((H, W)
+    bool; the figures' rules, core.eval.users_frame). Exits with one line where the
+    run kept no Object Index or shows no object ``name``."""
+    file = f"{frame:04d}.exr"
+    truth = read_rgb(compared / "ground_truth" / "material" / file)
+    truth_off = read_rgb(compared / "ground_truth" / "off" / file)
+    k = frame_exposure(truth)
+    mask = subsurface_mask(truth, truth_off, k)
+    stored = stored_objects(compared, frame)
+    if stored is None:
+        raise SystemExit(f"error: {compared} kept no Object Index of frame {frame}")
+    index, names = stored
+    number = next((n for n, label in names.items() if label == name), None)
+    if number is None:
+        raise SystemExit(f"error: {compared} shows no object {name!r}")
+    return SimpleNamespace(
+        truth=truth, truth_off=truth_off, k=k, mask=mask, mine=(index == number) & mask
+    )
 
 
 def frame_objects(compared: Path, blend: Path, frame: int) -> tuple[np.ndarray, dict[int, str]]:

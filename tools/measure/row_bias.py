@@ -26,9 +26,9 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from contact_bands import stored_objects
+from contact_bands import object_truth
 
-from cvsss.core.eval.users_frame import display, frame_exposure, subsurface_mask
+from cvsss.core.eval.users_frame import display
 from cvsss.core.io.exr import read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
@@ -49,20 +49,11 @@ def main() -> int:
     start, end = parse_frames(args.frames)
     for frame in range(start, end + 1):
         name = f"{frame:04d}.exr"
-        truth = read_rgb(args.compared / "ground_truth" / "material" / name)
-        k = frame_exposure(truth)
-        mask = subsurface_mask(truth, read_rgb(args.compared / "ground_truth" / "off" / name), k)
-        shown = display(truth, k)
+        seen = object_truth(args.compared, frame, args.object)
+        k, mask, mine = seen.k, seen.mask, seen.mine
+        shown = display(seen.truth, k)
         ours = display(read_rgb(renders / f"material_apply_on_render_{name}"), k) - shown
         plain = display(read_rgb(renders / f"material_plain_{name}"), k) - shown
-        stored = stored_objects(args.compared, frame)
-        if stored is None:
-            raise SystemExit(f"error: {args.compared} kept no Object Index of frame {frame}")
-        index, names = stored
-        number = next((n for n, label in names.items() if label == args.object), None)
-        if number is None:
-            raise SystemExit(f"error: {args.compared} shows no object {args.object!r}")
-        mine = (index == number) & mask
         unbiased = ours.copy()
         line = []
         for row in range(first, last + 1):

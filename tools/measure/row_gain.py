@@ -7,9 +7,9 @@ the post's (a method's finished frame, ``Composite``, over the ``none`` method's
 on the same passes), then the post's frame over the ground truth. Linear light,
 means over ``--frames``; last the post's squared display error summed over the
 object's subsurface pixels and the frames (the figures' exposure and display rule,
-the mean over the channels), to compare two runs of the post. It tells whether an object's bias along a row comes
-from what the post adds (the ratios differ) or from the passes (the frame without
-subsurface differs). From the repository root, after ``make demo``::
+the mean over the channels), to compare two runs of the post. It tells whether an
+object's bias along a row comes from what the post adds (the ratios differ) or from
+the passes (the frame without subsurface differs). From the repository root, after ``make demo``::
 
     .venv/bin/cvsss render out/demo/flash/flash.blend --frames 21-22 --passes-only \\
         --denoise --out out/rows
@@ -28,18 +28,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from contact_bands import stored_objects
+from contact_bands import object_truth
 
 from cvsss.core.color import luminance
-from cvsss.core.eval.users_frame import display, frame_exposure, subsurface_mask
-from cvsss.core.io.exr import read_channels, read_rgb
+from cvsss.core.eval.users_frame import display
+from cvsss.core.io.exr import read_result
 from cvsss.sss_addon.cli.parser import parse_frames
-
-
-def composite(path: Path) -> np.ndarray:
-    """(H, W, 3) float32, linear: a cvsss result file's finished frame."""
-    channels = read_channels(path)
-    return np.stack([channels[f"Composite.{c}"] for c in "RGB"], axis=-1)
 
 
 def main() -> int:
@@ -54,35 +48,26 @@ def main() -> int:
     first, last = parse_frames(args.rows)
     start, end = parse_frames(args.frames)
     squared = 0.0
-    ratios: dict[str, dict[int, list[float]]] = {k: {} for k in ("Cycles", "post", "post / Cycles")}
+    ratios: dict[str, dict[int, list[float]]] = {
+        key: {} for key in ("Cycles", "post", "post / Cycles")
+    }
     for frame in range(start, end + 1):
         name = f"{frame:04d}.exr"
-        truth = read_rgb(args.compared / "ground_truth" / "material" / name)
-        truth_off = read_rgb(args.compared / "ground_truth" / "off" / name)
-        k = frame_exposure(truth)
-        mask = subsurface_mask(truth, truth_off, k)
-        stored = stored_objects(args.compared, frame)
-        if stored is None:
-            raise SystemExit(f"error: {args.compared} kept no Object Index of frame {frame}")
-        index, names = stored
-        number = next((n for n, label in names.items() if label == args.object), None)
-        if number is None:
-            raise SystemExit(f"error: {args.compared} shows no object {args.object!r}")
-        mine = (index == number) & mask
-        post = composite(args.post / name)
-        error = np.mean((display(post, k) - display(truth, k)) ** 2, axis=-1)
-        squared += float(error[mine].sum())
+        seen = object_truth(args.compared, frame, args.object)
+        post = read_result(args.post / name)["Composite"]
+        error = np.mean((display(post, seen.k) - display(seen.truth, seen.k)) ** 2, axis=-1)
+        squared += float(error[seen.mine].sum())
         y = {
-            "truth": luminance(truth),
-            "truth_off": luminance(truth_off),
+            "truth": luminance(seen.truth),
+            "truth_off": luminance(seen.truth_off),
             "post": luminance(post),
-            "none": luminance(composite(args.none / name)),
+            "none": luminance(read_result(args.none / name)["Composite"]),
         }
         for row in range(first, last + 1):
-            on = mine[row]
+            on = seen.mine[row]
             if not on.any():
                 continue
-            s = {k: float(v[row][on].sum()) for k, v in y.items()}
+            s = {image: float(v[row][on].sum()) for image, v in y.items()}
             for key, value in (
                 ("Cycles", s["truth"] / s["truth_off"]),
                 ("post", s["post"] / s["none"]),
