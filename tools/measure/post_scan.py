@@ -29,6 +29,8 @@ EEVEE passes (``cvsss render --engine EEVEE``) are scored against the run's EEVE
 renders with ``--setting eevee_<samples>``. The method is ``--method`` (default
 ``as_ccv``); a temporal method's frames
 after the first differ from Apply on Render's, which warms up before them.
+``--hold name=value`` (repeatable) holds another option for every value, to scan
+one option with another changed (``--hold hidden-mirror=false``).
 ``--backend numpy`` posts with the NumPy backend, where a rule not yet an
 option can be tried in a scratch edit of ``core/mc/samples.py`` before its
 twin in the compiled pass is written (the backends agree to float rounding).
@@ -57,11 +59,17 @@ from cvsss.core.eval.users_frame import (
 from cvsss.core.io.exr import read_result, read_rgb
 
 
-def post(passes: Path, out: Path, method: str, backend: str, option: str, value: str) -> Path:
-    """Run ``cvsss post`` on ``passes`` with ``--option value``; the method's folder."""
+def post(
+    passes: Path, out: Path, method: str, backend: str, option: str, value: str, hold: list[str]
+) -> Path:
+    """Run ``cvsss post`` on ``passes`` with ``--option value`` and the options ``hold``
+    (``name=value`` each); the method's folder."""
     command = [sys.executable, "-m", "cvsss.sss_addon.cli.main", "post", str(passes),
                "--out", str(out), "--method", method, "--backend", backend, "--quiet",
                f"--{option}", value]  # fmt: skip
+    for held in hold:
+        name, _, held_value = held.partition("=")
+        command += [f"--{name}", held_value]
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return out / method
 
@@ -91,6 +99,13 @@ def main() -> int:
     )
     parser.add_argument("--option", required=True, help="a cvsss post option, without --")
     parser.add_argument("--values", required=True, help="comma-separated values")
+    parser.add_argument(
+        "--hold",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="another cvsss post option, without --, held at VALUE for every value (repeatable)",
+    )
     parser.add_argument("--object", required=True, help="the object whose borders to score")
     parser.add_argument("--ring", type=int, default=4, help="px round the other objects")
     parser.add_argument("--method", default="as_ccv")
@@ -131,7 +146,8 @@ def main() -> int:
 
     plain = score({f: t[3] for f, t in truths.items()})
     head = f"{'':>14s} {'whole dB':>9s} {'sss dB':>7s} {'gain':>13s} {'effect dB':>10s}"
-    print(f"{args.passes}, frames {frames[0]}-{frames[-1]}; {args.option} scanned")
+    held = "".join(f", {h}" for h in args.hold)
+    print(f"{args.passes}, frames {frames[0]}-{frames[-1]}; {args.option} scanned{held}")
     print(head + f"   SSE {args.object} <= {args.ring} px / rest / other objects")
 
     def row(label, figures):
@@ -144,7 +160,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as folder:
         for value in args.values.split(","):
             out = Path(folder) / value
-            result = post(args.passes, out, args.method, args.backend, args.option, value)
+            result = post(
+                args.passes, out, args.method, args.backend, args.option, value, args.hold
+            )
             row(
                 f"{value}",
                 score({f: read_result(result / f"{f:04d}.exr")["Composite"] for f in frames}),

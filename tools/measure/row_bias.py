@@ -17,7 +17,12 @@ rest. From the repository root, after ``make demo`` (its compare of flash)::
     .venv/bin/python tools/measure/row_bias.py out/demo/flash/users_frame \\
         --object "flash Marble Top" --rows 162-167 --frames 21-22
 
-(docs/explanation/accuracy.md, *Where it stands*, quotes it on flash's slab.)
+``--post DIR`` reads Apply on Render's frames from a ``cvsss post`` method folder
+instead (``DIR/####.exr``, its Composite: the post of the pass files of ``cvsss
+render --passes-only --denoise``, denoised as the scene says), to score a change
+to the post against the same run.
+
+(docs/explanation/accuracy.md, *Where it stands* and §2.2, quotes it on the slabs.)
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import numpy as np
 from contact_bands import object_truth
 
 from cvsss.core.eval.users_frame import display
-from cvsss.core.io.exr import read_rgb
+from cvsss.core.io.exr import read_result, read_rgb
 from cvsss.sss_addon.cli.parser import parse_frames
 
 
@@ -42,6 +47,7 @@ def main() -> int:
     parser.add_argument(
         "--setting", default="cycles_16_denoised", help="the run's renders/<setting>"
     )
+    parser.add_argument("--post", type=Path, help="a cvsss post method folder (####.exr)")
     args = parser.parse_args()
     first, last = parse_frames(args.rows)
     renders = args.compared / "renders" / args.setting
@@ -52,7 +58,11 @@ def main() -> int:
         seen = object_truth(args.compared, frame, args.object)
         k, mask, mine = seen.k, seen.mask, seen.mine
         shown = display(seen.truth, k)
-        ours = display(read_rgb(renders / f"material_apply_on_render_{name}"), k) - shown
+        if args.post is None:
+            frame_ours = read_rgb(renders / f"material_apply_on_render_{name}")
+        else:
+            frame_ours = read_result(args.post / name)["Composite"]
+        ours = display(frame_ours, k) - shown
         plain = display(read_rgb(renders / f"material_plain_{name}"), k) - shown
         unbiased = ours.copy()
         line = []
