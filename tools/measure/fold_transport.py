@@ -27,6 +27,10 @@ From the repository root (about 3 minutes per light on two cores)::
     .venv/bin/python tools/measure/fold_transport.py rows out/fold/run_back out/fold/post_back
     .venv/bin/python tools/measure/fold_transport.py kernel --from-mm 4.4
 
+``cvsss render ... --thin-walks post`` renders the passes without the edge's rim
+band (whose points keep their subsurface in the pass render); link the first
+run's ``ground_truth`` into that run's folder to score it.
+
 docs/explanation/accuracy.md (§2.2, *The light round a convex edge*) quotes
 them: the kernel's integral follows Cycles' rows, the post's rows fall short
 near the edge, and the shortfall is the strip of the top next to the edge that
