@@ -114,6 +114,9 @@ def main() -> int:
     )
     parser.add_argument("--variant", default="material", help="the compare's method variant")
     args = parser.parse_args()
+    bad = [h for h in args.hold if "=" not in h or h.startswith("=")]
+    if bad:
+        raise SystemExit(f"error: --hold takes NAME=VALUE, got {bad[0]!r}")
     frames = sorted(int(p.stem) for p in args.passes.glob("[0-9]*.exr"))
     if not frames:
         raise SystemExit(f"error: no pass files in {args.passes}")
