@@ -137,10 +137,10 @@ def rows(run: Path, post: Path, also: list[Path], columns: slice, top_rows: slic
 def _kernel(delta: np.ndarray, normal_q: np.ndarray) -> np.ndarray:
     """Cycles' disk kernel per unit area at offsets ``delta`` (..., 3) from a point of the
     face (normal −y, Cycles' make_orthonormals frame), landing normals ``normal_q`` (3,)."""
-    n = np.array([0.0, -1.0, 0.0])
-    t = np.array([n[2] - n[1], n[0] - n[2], n[1] - n[0]])
-    t /= np.linalg.norm(t)
-    axes = ((n, 0.5), (t, 0.25), (np.cross(n, t), 0.25))
+    from cvsss.core.mc.samples import disk_frame
+
+    frame = disk_frame(np.array([[0.0, -1.0, 0.0]]))[0].astype(np.float64)
+    axes = ((frame[0:3], 0.5), (frame[3:6], 0.25), (frame[6:9], 0.25))
     length = np.linalg.norm(delta, axis=-1)
     pdfs = [pick * abs(float(normal_q @ a)) for a, pick in axes]
     total = sum(p * p for p in pdfs)
