@@ -60,15 +60,20 @@ from cvsss.core.io.exr import read_result, read_rgb
 
 
 def post(
-    passes: Path, out: Path, method: str, backend: str, option: str, value: str, hold: list[str]
+    passes: Path,
+    out: Path,
+    method: str,
+    backend: str,
+    option: str,
+    value: str,
+    hold: list[tuple[str, str]],
 ) -> Path:
-    """Run ``cvsss post`` on ``passes`` with ``--option value`` and the options ``hold``
-    (``name=value`` each); the method's folder."""
+    """Run ``cvsss post`` on ``passes`` with ``--option value`` and each held ``(name,
+    value)``; the method's folder."""
     command = [sys.executable, "-m", "cvsss.sss_addon.cli.main", "post", str(passes),
                "--out", str(out), "--method", method, "--backend", backend, "--quiet",
                f"--{option}", value]  # fmt: skip
-    for held in hold:
-        name, _, held_value = held.partition("=")
+    for name, held_value in hold:
         command += [f"--{name}", held_value]
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return out / method
@@ -114,9 +119,12 @@ def main() -> int:
     )
     parser.add_argument("--variant", default="material", help="the compare's method variant")
     args = parser.parse_args()
-    bad = [h for h in args.hold if "=" not in h or h.startswith("=")]
-    if bad:
-        raise SystemExit(f"error: --hold takes NAME=VALUE, got {bad[0]!r}")
+    hold = []
+    for held in args.hold:
+        name, equals, held_value = held.partition("=")
+        if not (name and equals):
+            raise SystemExit(f"error: --hold takes NAME=VALUE, got {held!r}")
+        hold.append((name, held_value))
     frames = sorted(int(p.stem) for p in args.passes.glob("[0-9]*.exr"))
     if not frames:
         raise SystemExit(f"error: no pass files in {args.passes}")
@@ -163,9 +171,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as folder:
         for value in args.values.split(","):
             out = Path(folder) / value
-            result = post(
-                args.passes, out, args.method, args.backend, args.option, value, args.hold
-            )
+            result = post(args.passes, out, args.method, args.backend, args.option, value, hold)
             row(
                 f"{value}",
                 score({f: read_result(result / f"{f:04d}.exr")["Composite"] for f in frames}),
